@@ -1,0 +1,47 @@
+# One task runner for the README, CI and developers. Everything lives in ./.venv.
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+export VIRTUAL_ENV := $(abspath $(VENV))
+export PATH := $(abspath $(VENV))/bin:$(PATH)
+
+.PHONY: setup demo test lint fmt rust-test py-test bench clean
+
+$(VENV)/bin/activate:
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip maturin
+
+# Build the Rust extension (release) and install decod_rs with its dev extras.
+setup: $(VENV)/bin/activate
+	$(VENV)/bin/maturin develop --release --extras dev
+
+demo: setup
+	$(VENV)/bin/decod demo
+
+fmt:
+	cargo fmt --all
+	$(VENV)/bin/ruff format python tests
+	$(VENV)/bin/ruff check --fix python tests
+
+lint: setup
+	cargo fmt --all -- --check
+	cargo clippy --all-targets -- -D warnings
+	cargo clippy --all-targets --features python -- -D warnings
+	$(VENV)/bin/ruff check python tests
+	$(VENV)/bin/ruff format --check python tests
+	$(VENV)/bin/mypy
+	$(PY) -m mypy.stubtest decod_rs._core --allowlist .stubtest-allowlist
+
+rust-test:
+	cargo test --release
+
+py-test: setup
+	$(PY) -m pytest -q
+
+test: lint rust-test py-test
+
+bench: setup
+	cargo bench
+	$(PY) -m pytest -q tests/benchmarks --benchmark-enable
+
+clean:
+	rm -rf $(VENV) target

@@ -1,0 +1,45 @@
+"""The ``decod`` command. Each verb lives in ``decod_rs/commands/<verb>.py`` and exposes
+``add_parser(subparsers)``, which registers the verb and sets ``func``; ``main`` dispatches."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from decod_rs import __version__
+
+# Module names under decod_rs.commands, in the order `decod --help` lists them.
+COMMANDS = [
+    "dump_config",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="decod",
+        description="DeCOD loop closure for LiDAR SLAM in pipes and tunnels.",
+    )
+    parser.add_argument("--version", action="version", version=f"decod {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"decod_rs.commands.{name}").add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("decod: interrupted", file=sys.stderr)
+        return 130
+    except (OSError, ValueError, LookupError) as exc:
+        # Errors on the user's input: one clear line, no traceback.
+        print(f"decod {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

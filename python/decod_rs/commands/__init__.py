@@ -1,0 +1,1 @@
+"""One module per ``decod`` verb (see ``decod_rs.cli``)."""

@@ -1,0 +1,456 @@
+//! The one typed configuration, one struct per pipeline section, with the paper's values as
+//! the `tunnel` preset and the ten-times-smaller spatial sampling of the `pipe` preset
+//! (paper §IV-E). Python reads and dumps it through serde (TOML / JSON), so this file is the
+//! single source of every default.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{DecodError, Result};
+
+/// Named parameter sets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// GEODE-scale tunnels (5–10 m sections): the paper's values.
+    Tunnel,
+    /// 0.3–0.8 m pipes: spatial sampling scaled down ten times, grid kept at 16 x 256.
+    Pipe,
+}
+
+impl std::str::FromStr for Preset {
+    type Err = DecodError;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "tunnel" => Ok(Self::Tunnel),
+            "pipe" => Ok(Self::Pipe),
+            other => Err(DecodError::config(
+                "preset",
+                format!("unknown preset {other:?}; expected \"tunnel\" or \"pipe\""),
+            )),
+        }
+    }
+}
+
+/// Submap accumulation (paper §IV-A.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SubmapConfig {
+    /// Consecutive scans accumulated per submap.
+    pub scans_per_submap: usize,
+    /// Time between submap anchors, seconds.
+    pub interval_s: f64,
+    /// Voxel edge of the accumulated cloud, metres.
+    pub voxel_m: f64,
+    /// Points closer than this to the sensor are dropped (robot body, lens), metres.
+    pub min_range_m: f64,
+    /// Points farther than this from the anchor are dropped (bounds the submap), metres.
+    pub max_range_m: f64,
+    /// A submap with fewer points than this after filtering is rejected.
+    pub min_points: usize,
+}
+
+/// Corridor axis by PCA (paper §III-A).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisConfig {
+    /// Minimum ratio of the two largest singular values (elongation check).
+    pub min_elongation: f64,
+}
+
+/// Reference contour fit and validation (paper §III-A, §IV-A.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContourConfig {
+    /// `"circle"`, `"polar"` (general smooth closed contour) or `"auto"`.
+    pub model: String,
+    /// Distance within which a projected point counts as on the contour, metres.
+    pub inlier_distance_m: f64,
+    /// Minimum fraction of projected points within `inlier_distance_m`.
+    pub min_inlier_fraction: f64,
+}
+
+/// Boundary detection on the axial offset profile (paper §III-A, §IV-A.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundaryConfig {
+    /// Axial bin of the offset profile, metres.
+    pub profile_bin_m: f64,
+    /// Narrow DoG sigma, metres.
+    pub dog_sigma_small_m: f64,
+    /// Wide DoG sigma, metres.
+    pub dog_sigma_large_m: f64,
+    /// Non-maximum suppression radius along the axis, metres.
+    pub nms_radius_m: f64,
+    /// Minimum DoG response to keep a peak, metres of offset.
+    pub min_strength_m: f64,
+}
+
+/// Descriptor grid (paper §III-A, §IV-A.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DescriptorConfig {
+    /// Axial bins `N_z`.
+    pub rows: usize,
+    /// Circumferential bins `N_p`.
+    pub cols: usize,
+    /// Axial half extent, metres (+-2.4 m in the paper).
+    pub half_length_m: f64,
+    /// Half-width of the masked bottom sector, degrees (+-30 deg in the paper).
+    pub bottom_mask_deg: f64,
+    /// Minimum points per cell to count it as observed.
+    pub min_points_per_cell: usize,
+}
+
+/// Matching and verification (paper §III-B, §III-C, Algorithm 1).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MatchingConfig {
+    /// Patch height in rows (9 in the paper).
+    pub patch_rows: usize,
+    /// Patch width in columns (33 in the paper).
+    pub patch_cols: usize,
+    /// Gaussian patch weight sigma along z, in cells.
+    pub sigma_z_cells: f64,
+    /// Gaussian patch weight sigma along p, in cells.
+    pub sigma_p_cells: f64,
+    /// Minimum fraction of cells observed in both descriptors.
+    pub min_overlap_fraction: f64,
+    /// Minimum inlier count to accept a loop (9 for trajectories, 15 for high precision).
+    pub min_inliers: usize,
+    /// Required ratio between the best and the runner-up candidate score (uniqueness).
+    pub uniqueness_ratio: f64,
+    /// Minimum time between query and candidate submaps, seconds.
+    pub min_time_separation_s: f64,
+    /// `"five_variable"` (paper), `"scale_only"` (ablation) or `"none"`.
+    pub normalisation: String,
+    /// Keep only the sign of each offset (ablation).
+    pub sign_only: bool,
+    /// Geometric verification on (paper) or off (ablation: best patch similarity wins).
+    pub verification: bool,
+}
+
+/// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GraphConfig {
+    /// `"five_dof"` (paper) or `"pose3"` (ablation).
+    pub loop_factor: String,
+    /// Huber threshold of the landmark factors.
+    pub huber_k: f64,
+    /// Sigma of the landmark position residual, metres.
+    pub landmark_position_sigma_m: f64,
+    /// Sigma of the axis term `1 - (a_i^T a_j)^2`.
+    pub landmark_axis_sigma: f64,
+    /// Odometry translation sigma per metre travelled.
+    pub odom_translation_sigma_per_m: f64,
+    /// Odometry rotation sigma per metre travelled, radians.
+    pub odom_rotation_sigma_per_m: f64,
+    /// Optimise at `"submap"` or `"scan"` granularity.
+    pub granularity: String,
+    /// Levenberg–Marquardt iteration cap.
+    pub max_iterations: usize,
+}
+
+/// Everything, one section per pipeline stage.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DecodConfig {
+    /// The preset these values started from.
+    pub preset: Preset,
+    /// Submap accumulation.
+    pub submap: SubmapConfig,
+    /// Corridor axis.
+    pub axis: AxisConfig,
+    /// Reference contour.
+    pub contour: ContourConfig,
+    /// Boundary detection.
+    pub boundary: BoundaryConfig,
+    /// Descriptor grid.
+    pub descriptor: DescriptorConfig,
+    /// Matching and verification.
+    pub matching: MatchingConfig,
+    /// Pose graph.
+    pub graph: GraphConfig,
+}
+
+impl DecodConfig {
+    /// The paper's GEODE values.
+    pub fn tunnel() -> Self {
+        Self {
+            preset: Preset::Tunnel,
+            submap: SubmapConfig {
+                scans_per_submap: 20,
+                interval_s: 8.0,
+                voxel_m: 0.055,
+                min_range_m: 0.5,
+                max_range_m: 30.0,
+                min_points: 500,
+            },
+            axis: AxisConfig {
+                min_elongation: 2.0,
+            },
+            contour: ContourConfig {
+                model: "auto".into(),
+                inlier_distance_m: 0.18,
+                min_inlier_fraction: 0.9,
+            },
+            boundary: BoundaryConfig {
+                profile_bin_m: 0.01,
+                dog_sigma_small_m: 0.025,
+                dog_sigma_large_m: 0.10,
+                nms_radius_m: 0.8,
+                min_strength_m: 0.002,
+            },
+            descriptor: DescriptorConfig {
+                rows: 16,
+                cols: 256,
+                half_length_m: 2.4,
+                bottom_mask_deg: 30.0,
+                min_points_per_cell: 1,
+            },
+            matching: MatchingConfig {
+                patch_rows: 9,
+                patch_cols: 33,
+                sigma_z_cells: 3.0,
+                sigma_p_cells: 11.0,
+                min_overlap_fraction: 0.25,
+                min_inliers: 9,
+                uniqueness_ratio: 1.2,
+                min_time_separation_s: 30.0,
+                normalisation: "five_variable".into(),
+                sign_only: false,
+                verification: true,
+            },
+            graph: GraphConfig {
+                loop_factor: "five_dof".into(),
+                huber_k: 1.345,
+                landmark_position_sigma_m: 0.05,
+                landmark_axis_sigma: 0.01,
+                odom_translation_sigma_per_m: 0.02,
+                odom_rotation_sigma_per_m: 0.002,
+                granularity: "submap".into(),
+                max_iterations: 100,
+            },
+        }
+    }
+
+    /// Pipes: spatial sampling ten times finer than the tunnel preset (paper §IV-E).
+    pub fn pipe() -> Self {
+        let mut c = Self::tunnel();
+        c.preset = Preset::Pipe;
+        c.submap.voxel_m = 0.0055;
+        c.submap.min_range_m = 0.05;
+        c.submap.max_range_m = 5.0;
+        c.contour.model = "circle".into();
+        c.contour.inlier_distance_m = 0.018;
+        c.boundary.profile_bin_m = 0.001;
+        c.boundary.dog_sigma_small_m = 0.0025;
+        c.boundary.dog_sigma_large_m = 0.010;
+        c.boundary.nms_radius_m = 0.08;
+        c.boundary.min_strength_m = 0.0002;
+        c.descriptor.half_length_m = 0.24;
+        c.graph.landmark_position_sigma_m = 0.01;
+        c
+    }
+
+    /// The named preset.
+    pub fn preset(preset: Preset) -> Self {
+        match preset {
+            Preset::Tunnel => Self::tunnel(),
+            Preset::Pipe => Self::pipe(),
+        }
+    }
+
+    /// The preset overridden by a TOML document: only the keys present change; unknown keys
+    /// are errors that name the key. A top-level `preset = "pipe"` selects the base.
+    pub fn from_toml_str(text: &str, default_preset: Preset) -> Result<Self> {
+        let user: toml::Table = text
+            .parse()
+            .map_err(|e: toml::de::Error| DecodError::config("<toml>", e.to_string()))?;
+        let preset = match user.get("preset") {
+            Some(toml::Value::String(s)) => s.parse()?,
+            Some(other) => {
+                return Err(DecodError::config(
+                    "preset",
+                    format!("expected a string, got {other}"),
+                ));
+            }
+            None => default_preset,
+        };
+        let base = toml::Table::try_from(Self::preset(preset))
+            .map_err(|e| DecodError::config("<preset>", e.to_string()))?;
+        let merged = merge_tables(base, user, "")?;
+        let config: Self = merged
+            .try_into()
+            .map_err(|e: toml::de::Error| DecodError::config("<toml>", e.to_string()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The whole config as TOML (what `decod dump-config` prints).
+    pub fn to_toml_string(&self) -> Result<String> {
+        toml::to_string(self).map_err(|e| DecodError::config("<config>", e.to_string()))
+    }
+
+    /// Range checks that the types cannot express.
+    pub fn validate(&self) -> Result<()> {
+        let positive = [
+            ("submap.interval_s", self.submap.interval_s),
+            ("submap.voxel_m", self.submap.voxel_m),
+            ("submap.max_range_m", self.submap.max_range_m),
+            ("axis.min_elongation", self.axis.min_elongation),
+            ("contour.inlier_distance_m", self.contour.inlier_distance_m),
+            ("boundary.profile_bin_m", self.boundary.profile_bin_m),
+            (
+                "boundary.dog_sigma_small_m",
+                self.boundary.dog_sigma_small_m,
+            ),
+            (
+                "boundary.dog_sigma_large_m",
+                self.boundary.dog_sigma_large_m,
+            ),
+            ("boundary.nms_radius_m", self.boundary.nms_radius_m),
+            ("descriptor.half_length_m", self.descriptor.half_length_m),
+            ("matching.sigma_z_cells", self.matching.sigma_z_cells),
+            ("matching.sigma_p_cells", self.matching.sigma_p_cells),
+            ("matching.uniqueness_ratio", self.matching.uniqueness_ratio),
+            ("graph.huber_k", self.graph.huber_k),
+        ];
+        for (name, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(DecodError::config(
+                    name,
+                    format!("must be > 0, got {value}"),
+                ));
+            }
+        }
+        if self.submap.scans_per_submap == 0 {
+            return Err(DecodError::config(
+                "submap.scans_per_submap",
+                "must be >= 1",
+            ));
+        }
+        if self.boundary.dog_sigma_small_m >= self.boundary.dog_sigma_large_m {
+            return Err(DecodError::config(
+                "boundary.dog_sigma_small_m",
+                "must be smaller than boundary.dog_sigma_large_m",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.contour.min_inlier_fraction) {
+            return Err(DecodError::config(
+                "contour.min_inlier_fraction",
+                "must be within [0, 1]",
+            ));
+        }
+        if self.descriptor.rows < 2 || self.descriptor.cols < 8 {
+            return Err(DecodError::config(
+                "descriptor.rows/cols",
+                "grid must be at least 2 x 8",
+            ));
+        }
+        if self.matching.patch_rows > self.descriptor.rows
+            || self.matching.patch_cols > self.descriptor.cols
+        {
+            return Err(DecodError::config(
+                "matching.patch_rows/patch_cols",
+                "patch larger than the descriptor grid",
+            ));
+        }
+        for (name, value, allowed) in [
+            (
+                "contour.model",
+                &self.contour.model,
+                &["auto", "circle", "polar"][..],
+            ),
+            (
+                "matching.normalisation",
+                &self.matching.normalisation,
+                &["five_variable", "scale_only", "none"][..],
+            ),
+            (
+                "graph.loop_factor",
+                &self.graph.loop_factor,
+                &["five_dof", "pose3"][..],
+            ),
+            (
+                "graph.granularity",
+                &self.graph.granularity,
+                &["submap", "scan"][..],
+            ),
+        ] {
+            if !allowed.contains(&value.as_str()) {
+                return Err(DecodError::config(
+                    name,
+                    format!("{value:?} is not one of {allowed:?}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Default for DecodConfig {
+    fn default() -> Self {
+        Self::tunnel()
+    }
+}
+
+/// Overrides `base` with `user`, recursing into tables; a key absent from `base` is an error
+/// naming its dotted path (catches typos such as `boundary.nms_radius`).
+fn merge_tables(mut base: toml::Table, user: toml::Table, prefix: &str) -> Result<toml::Table> {
+    for (key, value) in user {
+        let path = if prefix.is_empty() {
+            key.clone()
+        } else {
+            format!("{prefix}.{key}")
+        };
+        match (base.remove(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(u)) => {
+                base.insert(key, toml::Value::Table(merge_tables(b, u, &path)?));
+            }
+            (Some(_), v) => {
+                base.insert(key, v);
+            }
+            (None, _) => return Err(DecodError::config(path, "unknown parameter")),
+        }
+    }
+    Ok(base)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_validate_and_round_trip_through_toml() {
+        for preset in [Preset::Tunnel, Preset::Pipe] {
+            let c = DecodConfig::preset(preset);
+            c.validate().unwrap();
+            let text = c.to_toml_string().unwrap();
+            let back = DecodConfig::from_toml_str(&text, Preset::Tunnel).unwrap();
+            assert_eq!(back, c);
+        }
+    }
+
+    #[test]
+    fn override_changes_only_the_given_key() {
+        let c =
+            DecodConfig::from_toml_str("[boundary]\nnms_radius_m = 1.5\n", Preset::Tunnel).unwrap();
+        assert_eq!(c.boundary.nms_radius_m, 1.5);
+        assert_eq!(c.boundary.dog_sigma_small_m, 0.025);
+    }
+
+    #[test]
+    fn unknown_and_invalid_keys_are_named() {
+        let err = DecodConfig::from_toml_str("[boundary]\nnms = 1.5\n", Preset::Tunnel)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(err.contains("boundary.nms"), "{err}");
+        let err = DecodConfig::from_toml_str("[submap]\nvoxel_m = -1.0\n", Preset::Pipe)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(err.contains("submap.voxel_m"), "{err}");
+    }
+}

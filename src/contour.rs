@@ -1,0 +1,1 @@
+//! (extraction, issue 2: filled by the extraction work)

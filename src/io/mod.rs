@@ -1,0 +1,1 @@
+//! Native log ingestion (issue 4).

@@ -1,0 +1,71 @@
+//! Types shared by extraction (producer) and matching (consumer): the descriptor grid and
+//! the landmark that carries it. Frames are named: `*_in_submap` is the body frame of the
+//! submap's anchor scan.
+
+use serde::{Deserialize, Serialize};
+
+/// A DeCOD descriptor (paper §III-A): the boundary neighbourhood unrolled on a `(z, p)` grid.
+///
+/// Row `r` covers axial offsets `z` in `[-half_length + r*cell_z_m, ... + cell_z_m)` from the
+/// landmark origin along the axis; column `c` covers normalised arclength
+/// `p` in `[c/cols, (c+1)/cols)`, starting at `e1` (gravity) and running towards `e2`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Descriptor {
+    /// Number of axial bins `N_z` (16 by default).
+    pub rows: usize,
+    /// Number of circumferential bins `N_p` (256 by default).
+    pub cols: usize,
+    /// Axial cell size in metres (0.30 m in the tunnel preset).
+    pub cell_z_m: f64,
+    /// Contour perimeter in metres: converts a `p` offset into an arclength.
+    pub perimeter_m: f64,
+    /// Mean signed normal offset per cell in metres, row-major `rows x cols`;
+    /// 0.0 where `observed` is false.
+    pub offsets_m: Vec<f64>,
+    /// Per-cell observed mask, row-major `rows x cols` (bottom sector forced false).
+    pub observed: Vec<bool>,
+    /// `n1(p) = n(p)^T e1` at each column centre (length `cols`), for normalisation.
+    pub normal_e1: Vec<f64>,
+    /// `n2(p) = n(p)^T e2` at each column centre (length `cols`).
+    pub normal_e2: Vec<f64>,
+}
+
+impl Descriptor {
+    /// Index of cell `(row, col)` in the row-major arrays.
+    #[inline]
+    pub fn index(&self, row: usize, col: usize) -> usize {
+        row * self.cols + col
+    }
+
+    /// Number of observed cells.
+    pub fn observed_count(&self) -> usize {
+        self.observed.iter().filter(|&&o| o).count()
+    }
+}
+
+/// A cross-sectional boundary detected in one submap, with everything matching and the
+/// 5-DoF factor need.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Landmark {
+    /// Stamp of the submap's anchor scan (seconds); identifies the frame below.
+    pub submap_stamp: f64,
+    /// Stamps of every scan accumulated into the submap (eligibility: no shared scans).
+    pub scan_stamps: Vec<f64>,
+    /// Landmark origin `o` (contour centre at the boundary) in the submap frame, metres.
+    pub origin_in_submap: [f64; 3],
+    /// Unit corridor axis `a` in the submap frame, oriented with the sensor's forward.
+    pub axis_in_submap: [f64; 3],
+    /// Transverse basis `e1` (gravity projected off the axis) in the submap frame.
+    pub e1_in_submap: [f64; 3],
+    /// Transverse basis `e2 = a x e1` in the submap frame.
+    pub e2_in_submap: [f64; 3],
+    /// Reference contour sampled at the descriptor's column centres: `(cols, 2)` row-major,
+    /// coordinates along `(e1, e2)` relative to `origin_in_submap`, metres.
+    pub contour_e1e2_m: Vec<[f64; 2]>,
+    /// Characteristic size of the section: mean distance of the contour from its centre.
+    pub radius_m: f64,
+    /// DoG response at the boundary peak (metres of offset): detection strength.
+    pub strength: f64,
+    /// The descriptor around the boundary.
+    pub descriptor: Descriptor,
+}

@@ -1,0 +1,29 @@
+//! decod: DeCOD loop closure for LiDAR SLAM in pipes and tunnels.
+//!
+//! Pipeline (paper §III): [`submap`] accumulates scans; [`axis`], [`contour`], [`boundary`]
+//! and [`descriptor`] turn a submap into [`landmark::Landmark`]s ([`extract`] chains them);
+//! [`matching`] associates landmarks across traversals; [`io`] reads MCAP logs. The pose
+//! graph lives in Python (`python/decod_rs/graph.py`). Bindings are in `src/python/`, behind
+//! the `python` feature, and nothing else imports pyo3.
+#![warn(missing_docs)]
+
+pub mod axis;
+pub mod boundary;
+pub mod config;
+pub mod contour;
+pub mod descriptor;
+pub mod error;
+pub mod extract;
+pub mod geometry;
+pub mod io;
+pub mod landmark;
+pub mod matching;
+pub mod scan;
+pub mod submap;
+
+#[cfg(feature = "python")]
+mod python;
+
+pub use config::{DecodConfig, Preset};
+pub use error::{DecodError, Result};
+pub use landmark::{Descriptor, Landmark};

@@ -1,0 +1,67 @@
+//! numpy in and out. Inputs are shape-checked with errors that name the argument and the
+//! expected shape, and read through safe (stride-aware) views; outputs are moved into numpy
+//! without copying.
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+/// `(N, 3)` float64 points into owned rows. Non-finite values are left for the core to
+/// report (it knows which index and why it matters).
+pub(crate) fn points_n3(array: &PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<Vec<[f64; 3]>> {
+    let view = array.as_array();
+    if view.ncols() != 3 {
+        return Err(PyValueError::new_err(format!(
+            "`{name}` must have shape (N, 3), got {:?}",
+            view.shape()
+        )));
+    }
+    Ok(view
+        .rows()
+        .into_iter()
+        .map(|r| [r[0], r[1], r[2]])
+        .collect())
+}
+
+/// `(4, 4)` float64 homogeneous matrix into a row-major array.
+pub(crate) fn matrix_4x4(array: &PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<[f64; 16]> {
+    let view = array.as_array();
+    if view.shape() != [4, 4] {
+        return Err(PyValueError::new_err(format!(
+            "`{name}` must have shape (4, 4), got {:?}",
+            view.shape()
+        )));
+    }
+    let mut out = [0.0; 16];
+    for ((r, c), v) in view.indexed_iter() {
+        out[r * 4 + c] = *v;
+    }
+    Ok(out)
+}
+
+/// `(N,)` float64 vector into an owned Vec.
+pub(crate) fn vector(array: &PyReadonlyArray1<'_, f64>) -> Vec<f64> {
+    array.as_array().iter().copied().collect()
+}
+
+/// Rows of `K` values into a `(N, K)` numpy array (moved, not copied).
+pub(crate) fn rows_to_numpy<'py, const K: usize>(
+    py: Python<'py>,
+    rows: &[[f64; K]],
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let flat: Vec<f64> = rows.iter().flat_map(|r| r.iter().copied()).collect();
+    flat_to_numpy(py, flat, rows.len(), K)
+}
+
+/// A row-major buffer into a `(rows, cols)` numpy array (moved, not copied).
+pub(crate) fn flat_to_numpy<'py, T: numpy::Element>(
+    py: Python<'py>,
+    flat: Vec<T>,
+    rows: usize,
+    cols: usize,
+) -> PyResult<Bound<'py, PyArray2<T>>> {
+    Array2::from_shape_vec((rows, cols), flat)
+        .map(|a| a.into_pyarray(py))
+        .map_err(|e| PyValueError::new_err(format!("internal shape error: {e}")))
+}
