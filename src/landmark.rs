@@ -69,3 +69,71 @@ pub struct Landmark {
     /// The descriptor around the boundary.
     pub descriptor: Descriptor,
 }
+
+impl Landmark {
+    /// Checks the invariants matching relies on: grid sizes consistent, finite values,
+    /// unit axis and orthonormal basis. Landmarks built in Python go through this.
+    pub fn validate(&self) -> crate::Result<()> {
+        use crate::error::DecodError;
+        let d = &self.descriptor;
+        let cells = d.rows * d.cols;
+        if d.rows == 0 || d.cols == 0 {
+            return Err(DecodError::invalid("descriptor", "empty grid"));
+        }
+        if d.offsets_m.len() != cells || d.observed.len() != cells {
+            return Err(DecodError::invalid(
+                "descriptor",
+                format!(
+                    "offsets/mask must have rows*cols = {cells} cells, got {} and {}",
+                    d.offsets_m.len(),
+                    d.observed.len()
+                ),
+            ));
+        }
+        if d.normal_e1.len() != d.cols || d.normal_e2.len() != d.cols {
+            return Err(DecodError::invalid(
+                "descriptor normals",
+                format!("normal_e1/normal_e2 must have cols = {} entries", d.cols),
+            ));
+        }
+        if !self.contour_e1e2_m.is_empty() && self.contour_e1e2_m.len() != d.cols {
+            return Err(DecodError::invalid(
+                "contour",
+                format!("must have cols = {} points or none", d.cols),
+            ));
+        }
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        if !finite(&d.offsets_m)
+            || !finite(&d.normal_e1)
+            || !finite(&d.normal_e2)
+            || !finite(&self.origin_in_submap)
+            || !finite(&self.axis_in_submap)
+            || !finite(&self.e1_in_submap)
+            || !finite(&self.e2_in_submap)
+            || !(self.submap_stamp.is_finite() && self.strength.is_finite())
+        {
+            return Err(DecodError::invalid("landmark", "non-finite values"));
+        }
+        if !(d.cell_z_m > 0.0 && d.perimeter_m > 0.0) {
+            return Err(DecodError::invalid(
+                "descriptor",
+                "cell_z_m and perimeter_m must be > 0",
+            ));
+        }
+        let dot = |a: &[f64; 3], b: &[f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let (a, e1, e2) = (&self.axis_in_submap, &self.e1_in_submap, &self.e2_in_submap);
+        let orthonormal = (dot(a, a) - 1.0).abs() < 1e-6
+            && (dot(e1, e1) - 1.0).abs() < 1e-6
+            && (dot(e2, e2) - 1.0).abs() < 1e-6
+            && dot(a, e1).abs() < 1e-6
+            && dot(a, e2).abs() < 1e-6
+            && dot(e1, e2).abs() < 1e-6;
+        if !orthonormal {
+            return Err(DecodError::invalid(
+                "axis/e1/e2",
+                "must be an orthonormal basis (unit axis, e1 and e2 perpendicular to it)",
+            ));
+        }
+        Ok(())
+    }
+}

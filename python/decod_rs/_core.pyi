@@ -1,5 +1,10 @@
 """Type stubs of the private native module (checked by ``mypy.stubtest`` in ``make lint``)."""
 
+from typing import final
+
+import numpy as np
+from numpy.typing import NDArray
+
 __version__: str
 
 # --- errors -------------------------------------------------------------------------------
@@ -13,6 +18,62 @@ class InternalError(Exception): ...
 # --- config -------------------------------------------------------------------------------
 def default_config_toml(preset: str) -> str: ...
 def resolve_config_json(preset: str, overrides: str = "") -> str: ...
+
+# --- landmark ----------------------------------------------------------------------------
+# Native classes cannot be subclassed: mark them @final (stubtest checks it).
+@final
+class Landmark:
+    def __new__(
+        cls,
+        submap_stamp: float,
+        origin: NDArray[np.float64],
+        axis: NDArray[np.float64],
+        e1: NDArray[np.float64],
+        descriptor: NDArray[np.float64],
+        mask: NDArray[np.bool_],
+        *,
+        cell_z_m: float,
+        perimeter_m: float,
+        normal_e1: NDArray[np.float64] | None = None,
+        normal_e2: NDArray[np.float64] | None = None,
+        contour: NDArray[np.float64] | None = None,
+        radius_m: float = 0.0,
+        strength: float = 0.0,
+        scan_stamps: NDArray[np.float64] | None = None,
+    ) -> Landmark: ...
+    @property
+    def submap_stamp(self) -> float: ...
+    @property
+    def scan_stamps(self) -> NDArray[np.float64]: ...
+    @property
+    def origin(self) -> NDArray[np.float64]: ...
+    @property
+    def axis(self) -> NDArray[np.float64]: ...
+    @property
+    def e1(self) -> NDArray[np.float64]: ...
+    @property
+    def e2(self) -> NDArray[np.float64]: ...
+    @property
+    def contour(self) -> NDArray[np.float64]: ...
+    @property
+    def radius_m(self) -> float: ...
+    @property
+    def strength(self) -> float: ...
+    @property
+    def descriptor(self) -> NDArray[np.float64]: ...
+    @property
+    def mask(self) -> NDArray[np.bool_]: ...
+    @property
+    def normal_e1(self) -> NDArray[np.float64]: ...
+    @property
+    def normal_e2(self) -> NDArray[np.float64]: ...
+    @property
+    def cell_z_m(self) -> float: ...
+    @property
+    def perimeter_m(self) -> float: ...
+    def to_json(self) -> str: ...
+    @staticmethod
+    def from_json(text: str) -> Landmark: ...
 
 # --- extraction (issue 2) -----------------------------------------------------------------
 

@@ -9,6 +9,7 @@ mod config;
 mod errors;
 mod extraction;
 mod io;
+mod landmark;
 mod matching;
 
 /// Runs `work` with the GIL released and maps a core error to its Python exception.
@@ -38,6 +39,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     errors::register(m)?;
     config::register(m)?;
+    landmark::register(m)?;
     extraction::register(m)?;
     io::register(m)?;
     matching::register(m)?;

@@ -1,0 +1,236 @@
+//! `decod_rs._core.Landmark`: one boundary with its descriptor, shared by the extraction and
+//! matching bindings. Immutable; arrays come out as fresh numpy arrays.
+
+use std::sync::Arc;
+
+use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use crate::landmark::{Descriptor, Landmark};
+
+use super::arrays::{flat_to_numpy, rows_to_numpy, vector};
+use super::errors::to_py_err;
+
+/// A detected cross-sectional boundary (see `decod::landmark::Landmark`).
+#[pyclass(name = "Landmark", module = "decod_rs._core", frozen)]
+pub(crate) struct PyLandmark {
+    pub(crate) inner: Arc<Landmark>,
+}
+
+impl PyLandmark {
+    /// Wraps a core landmark.
+    pub(crate) fn new(inner: Landmark) -> Self {
+        Self {
+            inner: Arc::new(inner),
+        }
+    }
+}
+
+fn vec3(v: &PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<[f64; 3]> {
+    let v = vector(v);
+    <[f64; 3]>::try_from(v.as_slice()).map_err(|_| {
+        PyValueError::new_err(format!("`{name}` must have shape (3,), got ({},)", v.len()))
+    })
+}
+
+#[pymethods]
+impl PyLandmark {
+    /// Builds a landmark from arrays (for descriptors computed elsewhere, and tests).
+    /// `descriptor` and `mask` are `(rows, cols)`; `e1` must be perpendicular to `axis`.
+    #[new]
+    #[pyo3(signature = (
+        submap_stamp, origin, axis, e1, descriptor, mask, *, cell_z_m, perimeter_m,
+        normal_e1 = None, normal_e2 = None, contour = None, radius_m = 0.0, strength = 0.0,
+        scan_stamps = None
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn py_new(
+        submap_stamp: f64,
+        origin: PyReadonlyArray1<'_, f64>,
+        axis: PyReadonlyArray1<'_, f64>,
+        e1: PyReadonlyArray1<'_, f64>,
+        descriptor: PyReadonlyArray2<'_, f64>,
+        mask: PyReadonlyArray2<'_, bool>,
+        cell_z_m: f64,
+        perimeter_m: f64,
+        normal_e1: Option<PyReadonlyArray1<'_, f64>>,
+        normal_e2: Option<PyReadonlyArray1<'_, f64>>,
+        contour: Option<PyReadonlyArray2<'_, f64>>,
+        radius_m: f64,
+        strength: f64,
+        scan_stamps: Option<PyReadonlyArray1<'_, f64>>,
+    ) -> PyResult<Self> {
+        let axis = vec3(&axis, "axis")?;
+        let e1 = vec3(&e1, "e1")?;
+        let e2 = [
+            axis[1] * e1[2] - axis[2] * e1[1],
+            axis[2] * e1[0] - axis[0] * e1[2],
+            axis[0] * e1[1] - axis[1] * e1[0],
+        ];
+        let values = descriptor.as_array();
+        let (rows, cols) = (values.nrows(), values.ncols());
+        let mask = mask.as_array();
+        if mask.shape() != values.shape() {
+            return Err(PyValueError::new_err(format!(
+                "`mask` must have the descriptor's shape ({rows}, {cols}), got {:?}",
+                mask.shape()
+            )));
+        }
+        // Default normals: those of a circle starting at e1 (p = 0) running towards e2.
+        let circle = |f: fn(f64) -> f64| -> Vec<f64> {
+            (0..cols)
+                .map(|c| f(std::f64::consts::TAU * (c as f64 + 0.5) / cols as f64))
+                .collect()
+        };
+        let contour = match contour {
+            Some(c) => {
+                let c = c.as_array();
+                if c.ncols() != 2 {
+                    return Err(PyValueError::new_err(format!(
+                        "`contour` must have shape (cols, 2), got {:?}",
+                        c.shape()
+                    )));
+                }
+                c.rows().into_iter().map(|r| [r[0], r[1]]).collect()
+            }
+            None => Vec::new(),
+        };
+        let landmark = Landmark {
+            submap_stamp,
+            scan_stamps: scan_stamps
+                .map(|s| vector(&s))
+                .unwrap_or_else(|| vec![submap_stamp]),
+            origin_in_submap: vec3(&origin, "origin")?,
+            axis_in_submap: axis,
+            e1_in_submap: e1,
+            e2_in_submap: e2,
+            contour_e1e2_m: contour,
+            radius_m,
+            strength,
+            descriptor: Descriptor {
+                rows,
+                cols,
+                cell_z_m,
+                perimeter_m,
+                offsets_m: values.iter().copied().collect(),
+                observed: mask.iter().copied().collect(),
+                normal_e1: normal_e1
+                    .map(|n| vector(&n))
+                    .unwrap_or_else(|| circle(f64::cos)),
+                normal_e2: normal_e2
+                    .map(|n| vector(&n))
+                    .unwrap_or_else(|| circle(f64::sin)),
+            },
+        };
+        landmark.validate().map_err(to_py_err)?;
+        Ok(Self::new(landmark))
+    }
+
+    /// Stamp of the submap's anchor scan, seconds.
+    #[getter]
+    fn submap_stamp(&self) -> f64 {
+        self.inner.submap_stamp
+    }
+    /// Stamps of the scans accumulated into the submap, `(K,)`.
+    #[getter]
+    fn scan_stamps<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.scan_stamps)
+    }
+    /// Landmark origin in the submap frame, `(3,)` metres.
+    #[getter]
+    fn origin<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.origin_in_submap)
+    }
+    /// Unit corridor axis in the submap frame, `(3,)`.
+    #[getter]
+    fn axis<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.axis_in_submap)
+    }
+    /// Transverse basis vector e1 (gravity side) in the submap frame, `(3,)`.
+    #[getter]
+    fn e1<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.e1_in_submap)
+    }
+    /// Transverse basis vector e2 = axis x e1 in the submap frame, `(3,)`.
+    #[getter]
+    fn e2<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.e2_in_submap)
+    }
+    /// Reference contour at the column centres, `(cols, 2)` along (e1, e2) from the origin.
+    #[getter]
+    fn contour<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        rows_to_numpy(py, &self.inner.contour_e1e2_m)
+    }
+    /// Mean contour radius (section size), metres.
+    #[getter]
+    fn radius_m(&self) -> f64 {
+        self.inner.radius_m
+    }
+    /// Detection strength (DoG response at the peak), metres.
+    #[getter]
+    fn strength(&self) -> f64 {
+        self.inner.strength
+    }
+    /// Mean signed normal offsets, `(rows, cols)` metres (0 where unobserved).
+    #[getter]
+    fn descriptor<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let d = &self.inner.descriptor;
+        flat_to_numpy(py, d.offsets_m.clone(), d.rows, d.cols)
+    }
+    /// Observed-cell mask, `(rows, cols)` bool.
+    #[getter]
+    fn mask<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<bool>>> {
+        let d = &self.inner.descriptor;
+        flat_to_numpy(py, d.observed.clone(), d.rows, d.cols)
+    }
+    /// n1(p) = n(p)^T e1 at the column centres, `(cols,)`.
+    #[getter]
+    fn normal_e1<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.descriptor.normal_e1)
+    }
+    /// n2(p) = n(p)^T e2 at the column centres, `(cols,)`.
+    #[getter]
+    fn normal_e2<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.descriptor.normal_e2)
+    }
+    /// Axial cell size, metres.
+    #[getter]
+    fn cell_z_m(&self) -> f64 {
+        self.inner.descriptor.cell_z_m
+    }
+    /// Contour perimeter, metres.
+    #[getter]
+    fn perimeter_m(&self) -> f64 {
+        self.inner.descriptor.perimeter_m
+    }
+    /// The landmark as JSON (lossless; `Landmark.from_json` reads it back).
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&*self.inner).map_err(|e| PyValueError::new_err(e.to_string()))
+    }
+    /// Reads a landmark written by `to_json`.
+    #[staticmethod]
+    fn from_json(text: &str) -> PyResult<Self> {
+        let landmark: Landmark = serde_json::from_str(text)
+            .map_err(|e| PyValueError::new_err(format!("invalid landmark JSON: {e}")))?;
+        landmark.validate().map_err(to_py_err)?;
+        Ok(Self::new(landmark))
+    }
+    fn __repr__(&self) -> String {
+        let o = self.inner.origin_in_submap;
+        format!(
+            "Landmark(stamp={:.3}, origin=[{:.3}, {:.3}, {:.3}], strength={:.2e}, observed={}/{})",
+            self.inner.submap_stamp,
+            o[0],
+            o[1],
+            o[2],
+            self.inner.strength,
+            self.inner.descriptor.observed_count(),
+            self.inner.descriptor.rows * self.inner.descriptor.cols
+        )
+    }
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyLandmark>()
+}
