@@ -24,7 +24,7 @@ def test_toml_overrides_and_errors_name_the_parameter(tmp_path):
     assert decod_rs.load_config(good, preset="pipe").matching.min_inliers == 15
     bad = tmp_path / "bad.toml"
     bad.write_text("[matching]\nmin_inlier = 15\n")
-    with pytest.raises(decod_rs.ConfigError, match="matching.min_inlier"):
+    with pytest.raises(decod_rs.ConfigError, match=r"matching\.min_inlier"):
         decod_rs.load_config(bad)
     with pytest.raises(decod_rs.ConfigError, match="preset"):
         decod_rs.load_config(preset="sewer")
