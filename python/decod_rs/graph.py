@@ -188,11 +188,11 @@ def _pose3_measurement(poses: FloatArray, lc: LoopConstraint) -> gtsam.Pose3:
 
 def _add_odometry(graph: gtsam.NonlinearFactorGraph, p: FloatArray, cfg: Config) -> None:
     sig = odometry_sigmas(p, cfg)
+    rel = _inverse(p[:-1]) @ p[1:]
     for k in range(p.shape[0] - 1):
-        rel = _inverse(p[k]) @ p[k + 1]
         graph.add(
             gtsam.BetweenFactorPose3(
-                k, k + 1, gtsam.Pose3(rel), gtsam.noiseModel.Diagonal.Sigmas(sig[k])
+                k, k + 1, gtsam.Pose3(rel[k]), gtsam.noiseModel.Diagonal.Sigmas(sig[k])
             )
         )
 

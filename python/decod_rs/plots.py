@@ -77,7 +77,7 @@ def plot_trajectories(
     axis = _main_axis(ref)
     t0 = min(s[0] for s, _ in series.values())
 
-    fig, (top, along) = plt.subplots(2, 1, figsize=(10, 8))
+    fig, (top, along) = plt.subplots(2, 1, figsize=(10, 8), layout="constrained")
     for name, (s, p) in series.items():
         xyz = p[:, :3, 3]
         style = "--" if name == "ground truth" else "-"
@@ -114,7 +114,7 @@ def plot_error_over_time(
     path: str | Path, errors: Mapping[str, tuple[ArrayLike, ArrayLike]]
 ) -> Path:
     """Position error against time: ``errors`` maps a label to (stamps (K,), errors_m (K,))."""
-    fig, ax = plt.subplots(figsize=(10, 4))
+    fig, ax = plt.subplots(figsize=(10, 4), layout="constrained")
     t0 = min(float(np.min(s)) for s, _ in errors.values()) if errors else 0.0
     for name, (s, e) in errors.items():
         ax.plot(np.asarray(s) - t0, e, color=_COLOURS.get(name), label=name, lw=1.2)
@@ -133,7 +133,7 @@ def plot_pr_curve(
     """Precision against recall over the inlier threshold: ``curves`` maps a label (e.g.
     ``"0.30 m"``) to the ``pr_curve`` points (dicts with ``recall``, ``precision``,
     ``min_inliers``)."""
-    fig, ax = plt.subplots(figsize=(5.5, 5))
+    fig, ax = plt.subplots(figsize=(5.5, 5), layout="constrained")
     for name, points in curves.items():
         pts = [p for p in points if p["recall"] is not None and p["precision"] is not None]
         if not pts:
@@ -180,9 +180,9 @@ def plot_descriptor_pair(
     observed = [a.compressed() for a in arrays if a.count()]
     lim = float(np.max(np.abs(np.concatenate(observed)))) if observed else 1.0
     lim = lim or 1.0
-    cmap = plt.get_cmap("coolwarm").copy()
+    cmap = plt.get_cmap("RdBu_r").copy()
     cmap.set_bad("0.6")
-    fig, axes = plt.subplots(1, 2, figsize=(12, 3.2))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 3.4), layout="constrained")
     image = None
     for ax, arr, name in zip(axes, arrays, ("query", "database"), strict=True):
         image = ax.imshow(

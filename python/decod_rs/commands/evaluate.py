@@ -1,6 +1,7 @@
 """``decod evaluate DIR --gt gt.tum [--joints joints.json] [--align]``: the paper's metrics
 on a run directory (definitions in ``decod_rs.evaluate``); writes ``evaluation.json``,
-``error_over_time.png`` and ``pr_curve.png`` into DIR (or ``--out``) and prints a table."""
+``error_over_time.png``, ``pr_curve.png`` and ``trajectory_vs_gt.png`` into DIR (or
+``--out``) and prints a table."""
 
 from __future__ import annotations
 
@@ -8,9 +9,13 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from decod_rs.config import PRESETS
 from decod_rs.evaluate import evaluate_run, format_table
-from decod_rs.plots import plot_error_over_time, plot_pr_curve
+from decod_rs.plots import plot_error_over_time, plot_pr_curve, plot_trajectories
+from decod_rs.run_files import read_loops_csv
+from decod_rs.tum import read_tum
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -72,5 +77,24 @@ def run(args: argparse.Namespace) -> int:
                 },
             )
         )
+        stamps, odom = read_tum(args.run_dir / "odometry.tum")
+        c_stamps, corrected = read_tum(args.run_dir / "corrected.tum")
+        if c_stamps.shape == stamps.shape and np.array_equal(c_stamps, stamps):
+            loops = read_loops_csv(args.run_dir / "loops.csv")
+            pairs = [
+                (float(q), float(d))
+                for q, d, ok in zip(loops.query_stamp, loops.db_stamp, loops.accepted, strict=True)
+                if ok
+            ]
+            written.append(
+                plot_trajectories(
+                    out / "trajectory_vs_gt.png",
+                    stamps,
+                    odom,
+                    corrected,
+                    pairs,
+                    ground_truth=read_tum(args.gt),
+                )
+            )
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
