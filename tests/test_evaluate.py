@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from decod_rs.cli import main
 from decod_rs.evaluate import evaluate_run, tolerances_for
+from decod_rs.plots import plot_descriptor_pair
 from decod_rs.run_files import (
     LandmarkTable,
     LoopTable,
@@ -173,3 +174,13 @@ def test_evaluate_cli_writes_evaluation_json(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "precision@1" in printed and "66.7 %" in printed
     assert main(["evaluate", str(tmp_path / "nope"), "--gt", str(tmp_path / "gt.tum")]) == 2
+
+
+def test_descriptor_pair_plot(tmp_path):
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(16, 256)) * 0.01
+    mask = rng.random((16, 256)) > 0.3
+    out = plot_descriptor_pair(tmp_path / "pair.png", d, mask, -d, mask, "pair")
+    assert out.stat().st_size > 1000
+    with pytest.raises(ValueError, match=r"database: expected .* same shape"):
+        plot_descriptor_pair(tmp_path / "bad.png", d, mask, d, mask[:, :10])

@@ -155,9 +155,8 @@ def _common_queries(
     if not np.any(inside):
         return common
     lm_st = landmarks.stamp[inside]
-    lm_o, _ = _planes_in_world(
-        gt_stamps, gt_poses, lm_st, landmarks.origin[inside], np.tile([1.0, 0, 0], (lm_st.size, 1))
-    )
+    lm_t = interpolate_poses(gt_stamps, gt_poses, lm_st)
+    lm_o = np.einsum("nij,nj->ni", lm_t[:, :3, :3], landmarks.origin[inside]) + lm_t[:, :3, 3]
     rows = np.flatnonzero(supported)
     if rows.size == 0:
         return common

@@ -180,8 +180,7 @@ def plot_descriptor_pair(
     observed = [a.compressed() for a in arrays if a.count()]
     lim = float(np.max(np.abs(np.concatenate(observed)))) if observed else 1.0
     lim = lim or 1.0
-    cmap = plt.get_cmap("RdBu_r").copy()
-    cmap.set_bad("0.6")
+    cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.6")
     fig, axes = plt.subplots(1, 2, figsize=(12, 3.4), layout="constrained")
     image = None
     for ax, arr, name in zip(axes, arrays, ("query", "database"), strict=True):
