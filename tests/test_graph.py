@@ -206,10 +206,11 @@ def test_wrong_loop_is_down_weighted_by_huber():
     plain = optimize(odom, [*loops, wrong], with_(TUNNEL, huber_k=1e9)).poses
     shift_robust = np.abs(robust.poses[:, :3, 3] - clean[:, :3, 3]).max()
     shift_plain = np.abs(plain[:, :3, 3] - clean[:, :3, 3]).max()
-    # Huber caps the wrong loop's pull at that of an inlier with residual k * sigma (6.7 cm);
-    # pinned by correct loops 5 m apart, a chain with 0.05 m/sqrt(m) yields ~k/sigma *
-    # sigma_t^2 * 1.25 m = 0.08 m; 0.15 m leaves margin, a quadratic loss moves poses > 1 m.
-    assert shift_robust <= 0.15
+    # Huber caps the wrong loop's pull at that of an inlier with residual k * sigma (6.7 cm).
+    # Correct loops ~5 m apart pin the chain (0.05 m/sqrt(m)): each side of the wrong loop
+    # gives ~k/sigma * sigma_t^2 * 1.3 m = 0.09 m; measured 0.135 m. Bound 0.2 m; a quadratic
+    # loss moves the poses by 1.23 m, so the test fails without the robust kernel.
+    assert shift_robust <= 0.2
     assert shift_plain >= 5 * shift_robust
     assert robust.loop_weights[-1] < 0.1
     assert np.all(robust.loop_weights[:-1] > 0.5)
