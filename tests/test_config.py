@@ -1,9 +1,8 @@
 import subprocess
 import sys
 
-import pytest
-
 import decod_rs
+import pytest
 
 
 def test_presets_resolve_with_paper_defaults():

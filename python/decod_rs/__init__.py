@@ -31,3 +31,48 @@ __all__ = [
     "load_config",
 ]
 # Each layer appends its public names below (one block per layer keeps merges clean).
+
+# Pose graph, TUM files, run files, evaluation and plots (issue 6: graph).
+from decod_rs.evaluate import evaluate_run, format_table
+from decod_rs.graph import (
+    CorrectionResult,
+    GraphResult,
+    LoopConstraint,
+    correct_trajectory,
+    optimize,
+    propagate_to_scans,
+)
+from decod_rs.graph_export import write_g2o, write_graph_json
+from decod_rs.run_files import (
+    LandmarkTable,
+    LoopTable,
+    loops_to_constraints,
+    read_landmarks_csv,
+    read_loops_csv,
+    write_landmarks_csv,
+    write_loops_csv,
+)
+from decod_rs.tum import interpolate_poses, read_tum, write_tum
+
+__all__ += [
+    "CorrectionResult",
+    "GraphResult",
+    "LandmarkTable",
+    "LoopConstraint",
+    "LoopTable",
+    "correct_trajectory",
+    "evaluate_run",
+    "format_table",
+    "interpolate_poses",
+    "loops_to_constraints",
+    "optimize",
+    "propagate_to_scans",
+    "read_landmarks_csv",
+    "read_loops_csv",
+    "read_tum",
+    "write_g2o",
+    "write_graph_json",
+    "write_landmarks_csv",
+    "write_loops_csv",
+    "write_tum",
+]

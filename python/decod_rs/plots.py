@@ -1,0 +1,203 @@
+"""PNG figures of a run and its evaluation (matplotlib, Agg backend: no display needed).
+
+* ``plot_trajectories``: odometry vs corrected (and ground truth if given), top view and the
+  position along the corridor's main axis over time, accepted loops as lines between the
+  query and database positions.
+* ``plot_error_over_time``: position error of each estimate against time (paper Fig. 5b).
+* ``plot_pr_curve``: precision against recall over the inlier threshold.
+* ``plot_descriptor_pair``: two (rows, cols) descriptors side by side, unobserved cells grey.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from decod_rs.tum import check_poses, interpolate_poses
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "plot_descriptor_pair",
+    "plot_error_over_time",
+    "plot_pr_curve",
+    "plot_trajectories",
+]
+
+_COLOURS = {"ground truth": "0.2", "odometry": "tab:red", "corrected": "tab:blue"}
+
+
+def _save(fig: Any, path: str | Path) -> Path:
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return out
+
+
+def _main_axis(points: FloatArray) -> FloatArray:
+    """Unit first principal direction of (N, 3) points (the corridor's main axis)."""
+    centred = points - points.mean(axis=0)
+    if points.shape[0] < 2 or not np.any(centred):
+        return np.array([1.0, 0.0, 0.0])
+    axis: FloatArray = np.linalg.svd(centred, full_matrices=False)[2][0]
+    return axis if axis[np.argmax(np.abs(axis))] > 0 else -axis
+
+
+def plot_trajectories(
+    path: str | Path,
+    stamps: ArrayLike,
+    odometry: ArrayLike,
+    corrected: ArrayLike,
+    loops: Sequence[tuple[float, float]] = (),
+    ground_truth: tuple[ArrayLike, ArrayLike] | None = None,
+) -> Path:
+    """Trajectory before/after: ``stamps`` (N,), ``odometry`` and ``corrected`` (N, 4, 4)
+    ``world_from_body``; ``loops``: accepted (query_stamp, db_stamp) pairs, drawn between
+    the two positions on each estimate; ``ground_truth``: optional (stamps, poses)."""
+    st = np.asarray(stamps, dtype=np.float64)
+    series: dict[str, tuple[FloatArray, FloatArray]] = {}
+    if ground_truth is not None:
+        series["ground truth"] = (
+            np.asarray(ground_truth[0], dtype=np.float64),
+            check_poses(ground_truth[1], "ground_truth"),
+        )
+    series["odometry"] = (st, check_poses(odometry, "odometry"))
+    series["corrected"] = (st, check_poses(corrected, "corrected"))
+    ref = series.get("ground truth", series["odometry"])[1][:, :3, 3]
+    axis = _main_axis(ref)
+    t0 = min(s[0] for s, _ in series.values())
+
+    fig, (top, along) = plt.subplots(2, 1, figsize=(10, 8), layout="constrained")
+    for name, (s, p) in series.items():
+        xyz = p[:, :3, 3]
+        style = "--" if name == "ground truth" else "-"
+        top.plot(xyz[:, 0], xyz[:, 1], style, color=_COLOURS[name], label=name, lw=1.2)
+        along.plot(s - t0, xyz @ axis, style, color=_COLOURS[name], label=name, lw=1.2)
+    for name in ("odometry", "corrected"):
+        s, p = series[name]
+        usable = [(q, d) for q, d in loops if s[0] <= min(q, d) and max(q, d) <= s[-1]]
+        if not usable:
+            continue
+        q_st = np.array([q for q, _ in usable])
+        d_st = np.array([d for _, d in usable])
+        pq = interpolate_poses(s, p, q_st)[:, :3, 3]
+        pd = interpolate_poses(s, p, d_st)[:, :3, 3]
+        for k in range(len(usable)):
+            kw: dict[str, Any] = {"color": _COLOURS[name], "lw": 0.6, "alpha": 0.6}
+            if k == 0:
+                kw["label"] = f"loops ({name})"
+            top.plot([pq[k, 0], pd[k, 0]], [pq[k, 1], pd[k, 1]], ":", **kw)
+            along.plot([q_st[k] - t0, d_st[k] - t0], [pq[k] @ axis, pd[k] @ axis], ":", **kw)
+    top.set_xlabel("x [m]")
+    top.set_ylabel("y [m]")
+    top.set_title("top view")
+    top.axis("equal")
+    top.legend(loc="best", fontsize=8)
+    along.set_xlabel("time [s]")
+    along.set_ylabel("position along the main axis [m]")
+    along.set_title("along the corridor")
+    along.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_error_over_time(
+    path: str | Path, errors: Mapping[str, tuple[ArrayLike, ArrayLike]]
+) -> Path:
+    """Position error against time: ``errors`` maps a label to (stamps (K,), errors_m (K,))."""
+    fig, ax = plt.subplots(figsize=(10, 4), layout="constrained")
+    t0 = min(float(np.min(s)) for s, _ in errors.values()) if errors else 0.0
+    for name, (s, e) in errors.items():
+        ax.plot(np.asarray(s) - t0, e, color=_COLOURS.get(name), label=name, lw=1.2)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("position error [m]")
+    ax.set_title("position error against ground truth")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    return _save(fig, path)
+
+
+def plot_pr_curve(
+    path: str | Path,
+    curves: Mapping[str, Sequence[Mapping[str, Any]]],
+) -> Path:
+    """Precision against recall over the inlier threshold: ``curves`` maps a label (e.g.
+    ``"0.30 m"``) to the ``pr_curve`` points (dicts with ``recall``, ``precision``,
+    ``min_inliers``)."""
+    fig, ax = plt.subplots(figsize=(5.5, 5), layout="constrained")
+    for name, points in curves.items():
+        pts = [p for p in points if p["recall"] is not None and p["precision"] is not None]
+        if not pts:
+            continue
+        r = [p["recall"] for p in pts]
+        pr = [p["precision"] for p in pts]
+        ax.plot(r, pr, "o-", ms=3, label=name)
+        for p in pts[:: max(1, len(pts) // 6)]:
+            ax.annotate(f"K={p['min_inliers']}", (p["recall"], p["precision"]), fontsize=7)
+    ax.set_xlim(0.0, 1.02)
+    ax.set_ylim(0.0, 1.02)
+    ax.set_xlabel("Recall@1")
+    ax.set_ylabel("Precision@1")
+    ax.set_title("precision-recall over the inlier threshold K")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left")
+    return _save(fig, path)
+
+
+def plot_descriptor_pair(
+    path: str | Path,
+    query: ArrayLike,
+    query_mask: ArrayLike,
+    database: ArrayLike,
+    database_mask: ArrayLike,
+    title: str = "",
+) -> Path:
+    """Two descriptors (rows = axial bins z, cols = arclength bins p, e.g. (16, 256)) with
+    their observed masks (same shape, True = observed) side by side on one colour scale
+    (signed normal offset s, metres); unobserved cells grey."""
+    arrays = []
+    for name, d, m in (
+        ("query", query, query_mask),
+        ("database", database, database_mask),
+    ):
+        da = np.asarray(d, dtype=np.float64)
+        ma = np.asarray(m, dtype=bool)
+        if da.ndim != 2 or ma.shape != da.shape:
+            raise ValueError(
+                f"plot_descriptor_pair: {name}: expected a (rows, cols) descriptor and a mask "
+                f"of the same shape, got {da.shape} and {ma.shape}"
+            )
+        arrays.append(np.ma.masked_array(da, mask=~ma | ~np.isfinite(da)))
+    observed = [a.compressed() for a in arrays if a.count()]
+    lim = float(np.max(np.abs(np.concatenate(observed)))) if observed else 1.0
+    lim = lim or 1.0
+    cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.6")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 3.4), layout="constrained")
+    image = None
+    for ax, arr, name in zip(axes, arrays, ("query", "database"), strict=True):
+        image = ax.imshow(
+            arr,
+            cmap=cmap,
+            vmin=-lim,
+            vmax=lim,
+            aspect="auto",
+            interpolation="nearest",
+            origin="lower",
+        )
+        ax.set_title(name)
+        ax.set_xlabel("arclength bin p")
+        ax.set_ylabel("axial bin z")
+    if image is not None:
+        fig.colorbar(image, ax=list(axes), label="signed offset s [m]", shrink=0.9)
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
