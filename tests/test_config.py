@@ -1,8 +1,9 @@
 import subprocess
 import sys
 
-import decod_rs
 import pytest
+
+import decod_rs
 
 
 def test_presets_resolve_with_paper_defaults():

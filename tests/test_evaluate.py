@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+
 from decod_rs.cli import main
 from decod_rs.evaluate import evaluate_run, tolerances_for
 from decod_rs.plots import plot_descriptor_pair

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import json
 
-import decod_rs
 import gtsam
 import numpy as np
 import pytest
+
+import decod_rs
 from decod_rs.config import Config
 from decod_rs.graph import (
     LoopConstraint,

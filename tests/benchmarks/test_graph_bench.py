@@ -7,9 +7,10 @@ corridor with 5 % scale drift, loops every ~4 m), solved with the default chain 
 
 from __future__ import annotations
 
-import decod_rs
 import numpy as np
 import pytest
+
+import decod_rs
 from decod_rs.config import Config
 from decod_rs.graph import LoopConstraint, optimize
 
