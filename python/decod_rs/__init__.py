@@ -29,3 +29,26 @@ __all__ = [
     "load_config",
 ]
 # Each layer appends its public names below (one block per layer keeps merges clean).
+
+# --- io (issue 4) ---
+from decod_rs.io import (
+    LogInfo,
+    ScanReader,
+    ScanRecord,
+    TopicInfo,
+    find_imu_topic,
+    inspect_log,
+    read_log,
+    read_tum,
+)
+
+__all__ += [
+    "LogInfo",
+    "ScanReader",
+    "ScanRecord",
+    "TopicInfo",
+    "find_imu_topic",
+    "inspect_log",
+    "read_log",
+    "read_tum",
+]

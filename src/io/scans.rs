@@ -82,11 +82,12 @@ fn resolve_topic(
     what: &str,
     accept: impl Fn(MessageKind) -> bool,
 ) -> Result<(String, MessageKind, Encoding)> {
-    let candidates: Vec<String> = channels
+    let mut candidates: Vec<String> = channels
         .iter()
         .filter(|c| c.kind.is_some_and(&accept))
         .map(|c| c.info.topic.clone())
         .collect();
+    candidates.sort();
     let name = match requested {
         Some(name) => name.to_string(),
         None => match candidates.as_slice() {
@@ -95,10 +96,14 @@ fn resolve_topic(
                 return Err(DecodError::Topic {
                     path: path.to_path_buf(),
                     reason: format!("no {what} topic in the log; all topics listed"),
-                    candidates: channels
-                        .iter()
-                        .map(|c| format!("{} ({})", c.info.topic, c.info.message_type))
-                        .collect(),
+                    candidates: {
+                        let mut all: Vec<String> = channels
+                            .iter()
+                            .map(|c| format!("{} ({})", c.info.topic, c.info.message_type))
+                            .collect();
+                        all.sort();
+                        all
+                    },
                 });
             }
             _ => {
@@ -361,7 +366,13 @@ impl Iterator for ScanStream {
                 .unwrap_or_else(|| self.path.clone());
             let cloud = match decode_cloud(self.points_kind, self.points_encoding, &msg.data) {
                 Ok(c) => c,
-                Err(e) => return Some(Err(log_error(&file, Some(&self.points_topic), e))),
+                Err(e) => {
+                    let reason = format!(
+                        "message at log time {:.9} s: {e}",
+                        msg.log_time as f64 * 1e-9
+                    );
+                    return Some(Err(log_error(&file, Some(&self.points_topic), reason)));
+                }
             };
             let stamp = cloud.header.stamp;
             let Some(world_from_body) = self.trajectory.at(stamp) else {
