@@ -17,9 +17,12 @@ def resolve_config_json(preset: str, overrides: str = "") -> str: ...
 # --- extraction (issue 2) -----------------------------------------------------------------
 
 # --- io (issue 4) -------------------------------------------------------------------------
+from typing import final  # noqa: E402
+
 import numpy as np  # noqa: E402
 import numpy.typing as npt  # noqa: E402
 
+@final
 class _ScanReader:
     def __iter__(self) -> _ScanReader: ...
     def __next__(
