@@ -59,8 +59,8 @@ impl ImuSeries {
             let n = (hi - lo) as f64;
             let mut sum = [0.0; 3];
             for s in &self.samples[lo..hi] {
-                for k in 0..3 {
-                    sum[k] += s.specific_force[k];
+                for (acc, v) in sum.iter_mut().zip(s.specific_force) {
+                    *acc += v;
                 }
             }
             return Some(sum.map(|v| v / n));

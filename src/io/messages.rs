@@ -77,8 +77,8 @@ macro_rules! with_reader {
 /// Decodes a point-cloud message of `kind` ([`MessageKind::is_points`]).
 pub fn decode_cloud(kind: MessageKind, encoding: Encoding, data: &[u8]) -> WireResult<Cloud> {
     match kind {
-        MessageKind::PointCloud2 => with_reader!(encoding, data, |r| decode_pointcloud2(r)),
-        MessageKind::LivoxCustom => with_reader!(encoding, data, |r| decode_custom_msg(r)),
+        MessageKind::PointCloud2 => with_reader!(encoding, data, decode_pointcloud2),
+        MessageKind::LivoxCustom => with_reader!(encoding, data, decode_custom_msg),
         other => Err(format!("{other:?} is not a point cloud")),
     }
 }
@@ -90,21 +90,19 @@ pub fn decode_poses(
     data: &[u8],
 ) -> WireResult<Vec<PoseSample>> {
     match kind {
-        MessageKind::Odometry => {
-            with_reader!(encoding, data, |r| decode_odometry(r)).map(|p| vec![p])
-        }
+        MessageKind::Odometry => with_reader!(encoding, data, decode_odometry).map(|p| vec![p]),
         MessageKind::PoseStamped => {
-            with_reader!(encoding, data, |r| decode_pose_stamped(r)).map(|p| vec![p])
+            with_reader!(encoding, data, decode_pose_stamped).map(|p| vec![p])
         }
         MessageKind::TransformStamped => {
-            with_reader!(encoding, data, |r| decode_transform_stamped(r)).map(|p| vec![p])
+            with_reader!(encoding, data, decode_transform_stamped).map(|p| vec![p])
         }
-        MessageKind::TfMessage => with_reader!(encoding, data, |r| decode_tf_message(r)),
+        MessageKind::TfMessage => with_reader!(encoding, data, decode_tf_message),
         other => Err(format!("{other:?} is not an odometry message")),
     }
 }
 
 /// Decodes a sensor_msgs/Imu.
 pub fn decode_imu_message(encoding: Encoding, data: &[u8]) -> WireResult<ImuSample> {
-    with_reader!(encoding, data, |r| decode_imu(r))
+    with_reader!(encoding, data, decode_imu)
 }

@@ -123,17 +123,17 @@ fn open_scan_stream(
 type TopicRow = (String, String, String, u64);
 
 /// `(files, topics, start, end, problem)` of a log.
-#[pyfunction]
-fn inspect_log(
-    py: Python<'_>,
-    path: PathBuf,
-) -> PyResult<(
+type LogRow = (
     Vec<String>,
     Vec<TopicRow>,
     Option<f64>,
     Option<f64>,
     Option<String>,
-)> {
+);
+
+/// `(files, topics, start, end, problem)` of a log.
+#[pyfunction]
+fn inspect_log(py: Python<'_>, path: PathBuf) -> PyResult<LogRow> {
     let s = detached(py, || crate::io::inspect(&path))?;
     Ok((
         s.files.iter().map(|f| f.display().to_string()).collect(),
