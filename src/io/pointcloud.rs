@@ -4,8 +4,9 @@
 //! and `row_step` (with padding) honoured; non-finite points dropped and counted.
 //!
 //! The common layout (x, y, z contiguous FLOAT32 at offsets 0, 4, 8, little-endian) takes a
-//! fast path that only copies 12 bytes per point: it decodes ~10x faster than the generic
-//! per-field path (see `benches/decode.rs` and the figures in the issue-4 report).
+//! fast path that only copies 12 bytes per point. Measured with `benches/decode.rs` on one
+//! core: 250-350 M points/s for the fast path (1e3-1e6 points per cloud) against 38-105 M
+//! points/s for the generic per-field path (x y z float64 behind a time field).
 
 use super::wire::{Header, WireReader, WireResult};
 

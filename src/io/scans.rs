@@ -216,6 +216,7 @@ impl ScanStream {
             .find(|c| c.info.topic == points_topic)
             .map_or(0, |c| c.info.count);
 
+        let mut odometry_topic = None;
         let trajectory = match &opts.odometry {
             OdometrySource::Tum(tum) => Trajectory::new(read_tum(tum)?),
             OdometrySource::Topic(requested) => {
@@ -236,11 +237,14 @@ impl ScanStream {
                         .map_err(|e| log_error(path, Some(&topic), e))?;
                     samples.extend(decoded);
                 }
-                Trajectory::new(single_transform_chain(path, &topic, samples)?)
+                let trajectory = Trajectory::new(single_transform_chain(path, &topic, samples)?);
+                odometry_topic = Some(topic);
+                trajectory
             }
         };
         if trajectory.is_empty() {
-            return Err(log_error(path, None, "odometry has no poses"));
+            let reason = "odometry topic has no messages (before any fault in the log)";
+            return Err(log_error(path, odometry_topic.as_deref(), reason));
         }
         let imu = match &opts.imu_topic {
             None => None,
