@@ -407,6 +407,7 @@ R1_SCHEMAS = {
     "livox_ros_driver/CustomMsg": "std_msgs/Header header\nuint64 timebase\n...",
     "livox_ros_driver2/CustomMsg": "std_msgs/Header header\nuint64 timebase\n...",
     "std_msgs/String": "string data\n",
+    "tf2_msgs/TFMessage": "geometry_msgs/TransformStamped[] transforms\n",
 }
 
 
@@ -694,3 +695,28 @@ def test_convert_ros1_bag_to_mcap_and_read_back(tmp_path, capsys):
         np.testing.assert_array_equal(s.points, clouds[min(clouds, key=lambda c: abs(c - s.stamp))])
         np.testing.assert_allclose(s.pose, pose_at(s.stamp), atol=1e-9)
     assert cli_main(["convert", str(bag), str(out)]) == 2  # refuses to overwrite
+
+
+def test_ros1_tf_message_odometry_needs_one_chain(tmp_path):
+    fields, step, big = LAYOUTS["velodyne"]
+    data, width, _ = cloud_bytes(random_points(4), fields, step, big)
+    topics = {"/velodyne_points": "sensor_msgs/PointCloud2", "/tf": "tf2_msgs/TFMessage"}
+
+    def tf(t: float, children: list[str]) -> bytes:
+        body = struct.pack("<I", len(children))
+        for child in children:
+            body += r1_header(t, "map") + r1_string(child) + r1_pose(t)
+        return body
+
+    cloud = ("/velodyne_points", 0.71, r1_cloud(0.71, data, fields, step, big, width))
+    log = write_ros1_mcap(
+        tmp_path / "one.mcap", topics, [cloud, *[("/tf", t, tf(t, ["base"])) for t in ODOM_STAMPS]]
+    )
+    (scan,) = list(decod_rs.read_log(log))
+    np.testing.assert_allclose(scan.pose, pose_at(0.71), atol=1e-9)
+    msgs = [cloud, *[("/tf", t, tf(t, ["base", "wheel"])) for t in ODOM_STAMPS]]
+    log = write_ros1_mcap(tmp_path / "two.mcap", topics, msgs)
+    with pytest.raises(
+        decod_rs.TopicError, match=r"`/tf` carries several transforms.*map -> base, map -> wheel"
+    ):
+        decod_rs.read_log(log, odom="/tf")
