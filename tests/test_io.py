@@ -720,3 +720,18 @@ def test_ros1_tf_message_odometry_needs_one_chain(tmp_path):
         decod_rs.TopicError, match=r"`/tf` carries several transforms.*map -> base, map -> wheel"
     ):
         decod_rs.read_log(log, odom="/tf")
+
+
+def test_not_an_mcap_and_empty_logs(tmp_path):
+    bag = tmp_path / "in.bag"
+    bag.write_bytes(b"#ROSBAG V2.0\n" + bytes(200))
+    with pytest.raises(decod_rs.LogFormatError, match=r"in\.bag: not an MCAP file.*decod convert"):
+        decod_rs.read_log(bag)
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(decod_rs.LogFormatError, match=r"empty\.mcap: truncated"):
+        decod_rs.read_log(empty)
+    (tmp_path / "bag2").mkdir()
+    (tmp_path / "bag2" / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    with pytest.raises(decod_rs.LogFormatError, match=r"bag2: no \.mcap file.*sqlite3"):
+        decod_rs.read_log(tmp_path / "bag2")

@@ -191,6 +191,9 @@ impl Iterator for MessageSource {
                         mcap::McapError::BadChunkCrc { .. } => {
                             format!("corrupt chunk (CRC mismatch): {e}")
                         }
+                        mcap::McapError::BadMagic => "not an MCAP file (bad magic number); a \
+                                                       ROS 1 .bag needs `decod convert` first"
+                            .to_string(),
                         mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc => {
                             format!("truncated file: {e}")
                         }

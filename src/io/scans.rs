@@ -169,8 +169,15 @@ impl ScanStream {
         // fatal: the second pass meets it again after yielding the scans before it.
         let mut channels: Vec<ChannelInfo> = Vec::new();
         let mut kept: Vec<(usize, Vec<u8>)> = Vec::new();
+        let mut first_pass_fault = None;
         for msg in MessageSource::new(files.clone()) {
-            let Ok(msg) = msg else { break };
+            let msg = match msg {
+                Ok(m) => m,
+                Err(e) => {
+                    first_pass_fault = Some(e);
+                    break;
+                }
+            };
             let idx = match channels
                 .iter()
                 .position(|c| c.info.topic == msg.channel.topic)
@@ -204,13 +211,19 @@ impl ScanStream {
                 kept.push((idx, msg.data));
             }
         }
-        let (points_topic, points_kind, points_encoding) = resolve_topic(
+        // A log that fails before its topics are seen: the fault is the error to report.
+        let resolved = resolve_topic(
             path,
             &channels,
             opts.points_topic.as_deref(),
             "point cloud (PointCloud2 or Livox CustomMsg)",
             MessageKind::is_points,
-        )?;
+        );
+        let (points_topic, points_kind, points_encoding) = match (resolved, first_pass_fault) {
+            (Ok(r), _) => r,
+            (Err(_), Some(fault)) => return Err(fault),
+            (Err(e), None) => return Err(e),
+        };
         let total_scans = channels
             .iter()
             .find(|c| c.info.topic == points_topic)
