@@ -8,6 +8,7 @@ round-off (1e-9 on poses; points are float32, compared exactly after the float32
 from __future__ import annotations
 
 import itertools
+import re
 import struct
 from pathlib import Path
 
@@ -543,6 +544,8 @@ def test_truncated_file_keeps_earlier_scans(tmp_path):
         np.testing.assert_array_equal(s.points, clouds[min(clouds, key=lambda c: abs(c - s.stamp))])
     info = decod_rs.inspect_log(log)
     assert info.problem is not None and info.topics
+    with pytest.raises(decod_rs.LogFormatError, match=r"r1\.mcap: truncated"):
+        decod_rs.check_log(log)
 
 
 def test_corrupt_chunk_crc(tmp_path):
@@ -607,6 +610,9 @@ def test_bad_clouds_are_clear_errors_and_stream_goes_on(tmp_path, body, match):
         "short_data": r1_cloud(0.5, data[:-5], fields, step, big, width),
     }[body]
     log, _ = ros1_log(tmp_path, n_clouds=4, bad={2: bad})
+    (check,) = [c for c in decod_rs.check_log(log) if c.topic == "/velodyne_points"]
+    assert (check.messages, check.decoded, check.ok) == (4, 3, False)
+    assert check.first_error is not None and re.search(match, check.first_error)
     reader = decod_rs.read_log(log)
     got = [next(reader), next(reader)]
     with pytest.raises(
@@ -686,6 +692,7 @@ def test_convert_ros1_bag_to_mcap_and_read_back(tmp_path, capsys):
     assert cli_main(["convert", str(bag), str(out)]) == 0
     printed = capsys.readouterr().out
     assert "MCAP" in printed and "/points" in printed
+    assert "verified: 24/24 messages of supported types decoded, 75 points" in printed
     assert list(out.glob("*.mcap")) and (out / "metadata.yaml").exists()
     info = decod_rs.inspect_log(out)
     assert {t.topic: t.encoding for t in info.topics} == {"/points": "cdr", "/pose": "cdr"}

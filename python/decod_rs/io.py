@@ -161,6 +161,37 @@ def inspect_log(path: PathLike) -> LogInfo:
     )
 
 
+@dataclass(frozen=True)
+class TopicCheck:
+    """One topic after reading and decoding every message (:func:`check_log`).
+
+    Attributes:
+        supported: decod decodes this type and encoding (else only counted).
+        messages: messages read; ``decoded``: decoded without error.
+        points: finite points over the decoded clouds (point-cloud topics).
+        first_error: the first decode error, if any.
+    """
+
+    topic: str
+    message_type: str
+    supported: bool
+    messages: int
+    decoded: int
+    points: int
+    first_error: str | None
+
+    @property
+    def ok(self) -> bool:
+        """Every message of a supported topic decoded (unsupported topics are ok)."""
+        return not self.supported or self.decoded == self.messages
+
+
+def check_log(path: PathLike) -> list[TopicCheck]:
+    """Reads and decodes every message of a log (chunk CRCs checked); raises
+    LogFormatError on a truncated or corrupt log, reports decode failures per topic."""
+    return [TopicCheck(*row) for row in _core.check_log(os.fspath(path))]
+
+
 def find_imu_topic(path: PathLike) -> str | None:
     """The unique sensor_msgs/Imu topic of a log, ``None`` if none (TopicError if several)."""
     return _core.find_imu_topic(os.fspath(path))

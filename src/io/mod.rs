@@ -2,12 +2,14 @@
 //! directories, without a ROS install.
 //!
 //! - [`log`]: files, channel table, [`inspect`], streaming messages (bounded memory).
+//! - [`check`]: read and decode every message (what `decod convert` verifies).
 //! - [`cdr`], [`ros1`] and [`wire`]: bounds-checked byte readers for the two encodings.
 //! - [`pointcloud`], [`livox`], [`odometry`], [`imu`]: message decoders.
 //! - [`tum`]: TUM trajectory files.
 //! - [`scans`]: [`ScanStream`], clouds paired with interpolated odometry and IMU.
 
 pub mod cdr;
+pub mod check;
 pub mod imu;
 pub mod livox;
 pub mod log;
@@ -22,6 +24,7 @@ pub mod wire;
 #[cfg(test)]
 mod fuzz;
 
+pub use check::{TopicCheck, check};
 pub use log::{LogSummary, TopicInfo, inspect};
 pub use messages::MessageKind;
 pub use pointcloud::Cloud;

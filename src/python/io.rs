@@ -147,6 +147,30 @@ fn inspect_log(py: Python<'_>, path: PathBuf) -> PyResult<LogRow> {
     ))
 }
 
+/// `(topic, type, supported, messages, decoded, points, first_error)` of a verified topic.
+type CheckRow = (String, String, bool, u64, u64, u64, Option<String>);
+
+/// Reads and decodes every message (see `decod::io::check`).
+#[pyfunction]
+fn check_log(py: Python<'_>, path: PathBuf) -> PyResult<Vec<CheckRow>> {
+    let topics = detached(py, || crate::io::check(&path))?;
+    Ok(topics
+        .into_iter()
+        .map(|t| {
+            let row = (t.topic, t.message_type, t.supported, t.messages);
+            (
+                row.0,
+                row.1,
+                row.2,
+                row.3,
+                t.decoded,
+                t.points,
+                t.first_error,
+            )
+        })
+        .collect())
+}
+
 /// The unique sensor_msgs/Imu topic, None when there is none (TopicError when several).
 #[pyfunction]
 fn find_imu_topic(py: Python<'_>, path: PathBuf) -> PyResult<Option<String>> {
@@ -166,6 +190,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(open_scan_stream, m)?)?;
     m.add_function(wrap_pyfunction!(inspect_log, m)?)?;
     m.add_function(wrap_pyfunction!(find_imu_topic, m)?)?;
+    m.add_function(wrap_pyfunction!(check_log, m)?)?;
     m.add_function(wrap_pyfunction!(read_tum, m)?)?;
     Ok(())
 }

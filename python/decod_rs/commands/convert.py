@@ -7,17 +7,19 @@ import argparse
 from pathlib import Path
 
 from decod_rs.commands.inspect import format_log_info
-from decod_rs.io import LogInfo, inspect_log
+from decod_rs.io import LogInfo, TopicCheck, check_log, inspect_log
 
 
-def convert_bag(bag: Path, out: Path) -> LogInfo:
+def convert_bag(bag: Path, out: Path) -> tuple[LogInfo, list[TopicCheck]]:
     """Converts the ROS 1 ``bag`` into the rosbag2 directory ``out`` (MCAP storage, CDR
-    messages, ROS 1 types mapped by rosbags) and returns the native summary of ``out``.
+    messages, ROS 1 types mapped by rosbags), then reads ``out`` back natively: its summary
+    and every message decoded.
 
     Raises:
         FileNotFoundError: ``bag`` does not exist.
         FileExistsError: ``out`` exists (rosbags never overwrites).
-        ValueError: rosbags cannot read or convert the bag (its message is kept).
+        ValueError: rosbags cannot read or convert the bag (its message is kept), or a
+            converted message of a type decod reads does not decode.
     """
     from rosbags.convert.converter import ConverterError, convert
 
@@ -42,7 +44,12 @@ def convert_bag(bag: Path, out: Path) -> LogInfo:
         )
     except ConverterError as exc:
         raise ValueError(f"{bag}: rosbags could not convert it: {exc}") from exc
-    return inspect_log(out)
+    checks = check_log(out)
+    bad = [c for c in checks if not c.ok]
+    if bad:
+        details = "; ".join(f"{c.topic}: {c.first_error}" for c in bad)
+        raise ValueError(f"{out}: converted messages do not decode natively: {details}")
+    return inspect_log(out), checks
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -53,7 +60,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    info = convert_bag(args.bag, args.out)
+    info, checks = convert_bag(args.bag, args.out)
     print(f"converted {args.bag} -> {args.out} (MCAP), read back natively:")
     print(format_log_info(info))
+    decoded = sum(c.decoded for c in checks if c.supported)
+    total = sum(c.messages for c in checks if c.supported)
+    points = sum(c.points for c in checks)
+    print(f"verified: {decoded}/{total} messages of supported types decoded, {points} points")
     return 0
