@@ -2,7 +2,7 @@
 //! file) and optionally IMU, yielded one [`Scan`] at a time (DESIGN.md "ingestion").
 //!
 //! Two passes over the log: the first keeps only the small odometry and IMU messages (and
-//! counts every topic), the second streams clouds in file order (= record order, which is
+//! counts every topic; with TUM odometry and no IMU the MCAP summary replaces it), the second streams clouds in file order (= record order, which is
 //! log-time order for `ros2 bag record` and rosbags output; clouds are not re-sorted), so
 //! memory is bounded by one chunk plus one cloud, not by the log. Measured: reading a 640 MB
 //! ROS 1-encoded log (400 clouds of 100k points) from Python peaks at 38 MB RSS against 28 MB
@@ -168,52 +168,23 @@ impl ScanStream {
     /// undecodable odometry message or empty odometry ([`DecodError::Log`]).
     pub fn open(path: &Path, opts: &ScanStreamOptions) -> Result<Self> {
         let files = log_files(path)?;
-        // Pass 1: channel table + raw odometry/IMU messages (small). A fault here is not
-        // fatal: the second pass meets it again after yielding the scans before it.
-        let mut channels: Vec<ChannelInfo> = Vec::new();
-        let mut kept: Vec<(usize, Vec<u8>)> = Vec::new();
-        let mut first_pass_fault = None;
-        for msg in MessageSource::new(files.clone()) {
-            let msg = match msg {
-                Ok(m) => m,
-                Err(e) => {
-                    first_pass_fault = Some(e);
-                    break;
-                }
-            };
-            let idx = match channels
-                .iter()
-                .position(|c| c.info.topic == msg.channel.topic)
-            {
-                Some(i) => i,
-                None => {
-                    let message_type = msg
-                        .channel
-                        .schema
-                        .as_ref()
-                        .map(|s| s.name.clone())
-                        .unwrap_or_default();
-                    channels.push(ChannelInfo {
-                        kind: MessageKind::from_type(&message_type),
-                        info: TopicInfo {
-                            topic: msg.channel.topic.clone(),
-                            message_type,
-                            encoding: msg.channel.message_encoding.clone(),
-                            count: 0,
-                        },
-                    });
-                    channels.len() - 1
-                }
-            };
-            let channel = &mut channels[idx];
-            channel.info.count += 1;
-            if channel
-                .kind
-                .is_some_and(|k| k.is_odometry() || k == MessageKind::Imu)
-            {
-                kept.push((idx, msg.data));
-            }
-        }
+        // Pass 1 (skipped when only the channel table is needed and every file has a
+        // summary, e.g. odometry from a TUM file without IMU).
+        let needs_messages =
+            matches!(opts.odometry, OdometrySource::Topic(_)) || opts.imu_topic.is_some();
+        let summary = if needs_messages {
+            None
+        } else {
+            Some(super::log::inspect(path)?).filter(|s| s.problem.is_none())
+        };
+        let FirstPass {
+            channels,
+            kept,
+            fault: first_pass_fault,
+        } = match summary {
+            Some(summary) => FirstPass::from_summary(summary),
+            None => FirstPass::read(&files),
+        };
         // A log that fails before its topics are seen: the fault is the error to report.
         let resolved = resolve_topic(
             path,
@@ -323,6 +294,87 @@ impl ScanStream {
     /// Points dropped so far because a coordinate was NaN or infinite.
     pub fn dropped_non_finite_points(&self) -> usize {
         self.dropped_non_finite
+    }
+}
+
+/// What the first pass gathers: the channel table, the raw odometry/IMU messages (small) and
+/// the log's fault if it has one. A fault is not fatal here: the second pass meets it again
+/// after yielding the scans before it.
+struct FirstPass {
+    channels: Vec<ChannelInfo>,
+    kept: Vec<(usize, Vec<u8>)>,
+    fault: Option<DecodError>,
+}
+
+impl FirstPass {
+    /// Reads every message of `files`.
+    fn read(files: &[PathBuf]) -> Self {
+        let mut channels: Vec<ChannelInfo> = Vec::new();
+        let mut kept: Vec<(usize, Vec<u8>)> = Vec::new();
+        let mut first_pass_fault = None;
+        for msg in MessageSource::new(files.to_vec()) {
+            let msg = match msg {
+                Ok(m) => m,
+                Err(e) => {
+                    first_pass_fault = Some(e);
+                    break;
+                }
+            };
+            let idx = match channels
+                .iter()
+                .position(|c| c.info.topic == msg.channel.topic)
+            {
+                Some(i) => i,
+                None => {
+                    let message_type = msg
+                        .channel
+                        .schema
+                        .as_ref()
+                        .map(|s| s.name.clone())
+                        .unwrap_or_default();
+                    channels.push(ChannelInfo {
+                        kind: MessageKind::from_type(&message_type),
+                        info: TopicInfo {
+                            topic: msg.channel.topic.clone(),
+                            message_type,
+                            encoding: msg.channel.message_encoding.clone(),
+                            count: 0,
+                        },
+                    });
+                    channels.len() - 1
+                }
+            };
+            let channel = &mut channels[idx];
+            channel.info.count += 1;
+            if channel
+                .kind
+                .is_some_and(|k| k.is_odometry() || k == MessageKind::Imu)
+            {
+                kept.push((idx, msg.data));
+            }
+        }
+        Self {
+            channels,
+            kept,
+            fault: first_pass_fault,
+        }
+    }
+
+    /// The channel table from the log's summary, without reading messages.
+    fn from_summary(summary: super::log::LogSummary) -> Self {
+        let channels = summary
+            .topics
+            .into_iter()
+            .map(|info| ChannelInfo {
+                kind: MessageKind::from_type(&info.message_type),
+                info,
+            })
+            .collect();
+        Self {
+            channels,
+            kept: Vec::new(),
+            fault: None,
+        }
     }
 }
 
