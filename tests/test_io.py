@@ -742,3 +742,41 @@ def test_not_an_mcap_and_empty_logs(tmp_path):
     (tmp_path / "bag2" / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
     with pytest.raises(decod_rs.LogFormatError, match=r"bag2: no \.mcap file.*sqlite3"):
         decod_rs.read_log(tmp_path / "bag2")
+
+
+def test_convert_livox_ros1_bag(tmp_path):
+    """GEODE's case: a ROS 1 bag whose lidar publishes only Livox CustomMsg."""
+    from rosbags.rosbag1 import Writer as Bag1Writer
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    types = {}
+    for name, text in LIVOX_MSGS.items():
+        msgdef = text.format(pkg="livox_ros_driver")
+        types.update(get_types_from_msg(msgdef, f"livox_ros_driver/msg/{name}"))
+    store.register(types)
+    T = store.types
+    pts = random_points(9)
+    stamp = T["builtin_interfaces/msg/Time"](sec=0, nanosec=500_000_000)
+    msg = T["livox_ros_driver/msg/CustomMsg"](
+        header=T["std_msgs/msg/Header"](seq=1, stamp=stamp, frame_id="livox"),
+        timebase=500_000_000,
+        point_num=9,
+        lidar_id=0,
+        rsvd=np.zeros(3, np.uint8),
+        points=[
+            T["livox_ros_driver/msg/CustomPoint"](
+                offset_time=k, x=p[0], y=p[1], z=p[2], reflectivity=1, tag=0, line=0
+            )
+            for k, p in enumerate(pts)
+        ],
+    )
+    bag = tmp_path / "livox.bag"
+    with Bag1Writer(bag) as w:
+        conn = w.add_connection("/livox/lidar", "livox_ros_driver/msg/CustomMsg", typestore=store)
+        w.write(conn, 500_000_000, store.serialize_ros1(msg, "livox_ros_driver/msg/CustomMsg"))
+    assert cli_main(["convert", str(bag), str(tmp_path / "out")]) == 0
+    tum = tmp_path / "odom.tum"
+    tum.write_text("0 0 0 0 0 0 0 1\n1 2 0 0 0 0 0 1\n")
+    (scan,) = list(decod_rs.read_log(tmp_path / "out", odom_tum=tum))
+    np.testing.assert_array_equal(scan.points, pts)
+    np.testing.assert_allclose(scan.pose[:3, 3], [1.0, 0.0, 0.0], atol=1e-12)
