@@ -417,9 +417,10 @@ def write_ros1_mcap(
     topics: dict[str, str],
     messages: list[tuple[str, float, bytes]],
     chunk_size: int = 1 << 20,
+    compression: CompressionType = CompressionType.NONE,
 ) -> Path:
     with path.open("wb") as f:
-        w = McapWriter(f, chunk_size=chunk_size, compression=CompressionType.NONE)
+        w = McapWriter(f, chunk_size=chunk_size, compression=compression)
         w.start(profile="ros1")
         ids = {}
         for topic, ty in topics.items():
@@ -464,10 +465,13 @@ def test_ros1_layouts_round_trip(tmp_path, layout):
         *r1_odometry_messages(),
         ("/velodyne_points", 1.23, r1_cloud(1.23, data, fields, step, big, width)),
     ]
-    log = write_ros1_mcap(tmp_path / "r1.mcap", R1_TOPICS, msgs)
-    (scan,) = list(decod_rs.read_log(log))
-    np.testing.assert_array_equal(scan.points, pts)
-    np.testing.assert_allclose(scan.pose, pose_at(1.23), atol=1e-9)
+    for compression in CompressionType:  # none, lz4, zstd chunks
+        log = write_ros1_mcap(
+            tmp_path / f"{compression.name}.mcap", R1_TOPICS, msgs, 4096, compression
+        )
+        (scan,) = list(decod_rs.read_log(log))
+        np.testing.assert_array_equal(scan.points, pts)
+        np.testing.assert_allclose(scan.pose, pose_at(1.23), atol=1e-9)
 
 
 @pytest.mark.parametrize("pkg", ["livox_ros_driver", "livox_ros_driver2"])
