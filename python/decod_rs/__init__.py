@@ -76,3 +76,28 @@ __all__ += [
     "write_loops_csv",
     "write_tum",
 ]
+
+# --- io (issue 4) ---
+from decod_rs.io import (
+    LogInfo,
+    ScanReader,
+    ScanRecord,
+    TopicCheck,
+    TopicInfo,
+    check_log,
+    find_imu_topic,
+    inspect_log,
+    read_log,
+)
+
+__all__ += [
+    "LogInfo",
+    "ScanReader",
+    "ScanRecord",
+    "TopicCheck",
+    "TopicInfo",
+    "check_log",
+    "find_imu_topic",
+    "inspect_log",
+    "read_log",
+]

@@ -78,5 +78,40 @@ class Landmark:
 # --- extraction (issue 2) -----------------------------------------------------------------
 
 # --- io (issue 4) -------------------------------------------------------------------------
+from typing import final  # noqa: E402
+
+import numpy as np  # noqa: E402
+import numpy.typing as npt  # noqa: E402
+
+@final
+class _ScanReader:
+    def __iter__(self) -> _ScanReader: ...
+    def __next__(
+        self,
+    ) -> tuple[
+        float,
+        npt.NDArray[np.float32],
+        npt.NDArray[np.float64],
+        npt.NDArray[np.float64] | None,
+    ]: ...
+    def skipped_outside_odometry(self) -> list[float]: ...
+    def total_scans_hint(self) -> int: ...
+    def dropped_non_finite_points(self) -> int: ...
+    def points_topic(self) -> str: ...
+    def odometry(self) -> npt.NDArray[np.float64]: ...
+
+def open_scan_stream(
+    path: str,
+    points: str | None = None,
+    odom: str | None = None,
+    odom_tum: str | None = None,
+    imu: str | None = None,
+) -> _ScanReader: ...
+def inspect_log(
+    path: str,
+) -> tuple[list[str], list[tuple[str, str, str, int]], float | None, float | None, str | None]: ...
+def find_imu_topic(path: str) -> str | None: ...
+def check_log(path: str) -> list[tuple[str, str, bool, int, int, int, str | None]]: ...
+def read_tum(path: str) -> npt.NDArray[np.float64]: ...
 
 # --- matching (issue 5) -------------------------------------------------------------------

@@ -13,6 +13,8 @@ from decod_rs import __version__
 COMMANDS = [
     "dump_config",
     "evaluate",
+    "inspect",
+    "convert",
 ]
 
 

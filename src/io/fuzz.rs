@@ -1,0 +1,82 @@
+//! Proptest fuzz of the message decoders: arbitrary bytes, in both encodings and for every
+//! message kind, give `Ok` or `Err`, never a panic (bounded cases so it runs in seconds).
+
+use proptest::prelude::*;
+
+use super::messages::{MessageKind, decode_cloud, decode_imu_message, decode_poses};
+use super::wire::Encoding;
+
+const KINDS: [MessageKind; 7] = [
+    MessageKind::PointCloud2,
+    MessageKind::LivoxCustom,
+    MessageKind::Odometry,
+    MessageKind::PoseStamped,
+    MessageKind::TransformStamped,
+    MessageKind::TfMessage,
+    MessageKind::Imu,
+];
+
+fn decode_any(kind: MessageKind, encoding: Encoding, data: &[u8]) {
+    let _ = match kind {
+        k if k.is_points() => decode_cloud(k, encoding, data).map(|_| ()),
+        MessageKind::Imu => decode_imu_message(encoding, data).map(|_| ()),
+        k => decode_poses(k, encoding, data).map(|_| ()),
+    };
+}
+
+/// A valid little-endian CDR PointCloud2 prefix, so mutations reach the data path.
+fn pointcloud_seed() -> Vec<u8> {
+    let mut b = vec![0u8, 1, 0, 0];
+    b.extend_from_slice(&[0; 8]); // stamp
+    b.extend_from_slice(&1u32.to_le_bytes());
+    b.push(0); // frame_id ""
+    b.extend_from_slice(&[0; 3]);
+    b.extend_from_slice(&1u32.to_le_bytes()); // height
+    b.extend_from_slice(&2u32.to_le_bytes()); // width
+    b.extend_from_slice(&3u32.to_le_bytes()); // fields
+    for (i, name) in [b"x\0", b"y\0", b"z\0"].iter().enumerate() {
+        b.extend_from_slice(&2u32.to_le_bytes());
+        b.extend_from_slice(*name);
+        b.extend_from_slice(&[0; 2]);
+        b.extend_from_slice(&(4 * i as u32).to_le_bytes());
+        b.push(7);
+        b.extend_from_slice(&[0; 3]);
+        b.extend_from_slice(&1u32.to_le_bytes());
+    }
+    b.push(0);
+    b.extend_from_slice(&[0; 3]);
+    b.extend_from_slice(&12u32.to_le_bytes());
+    b.extend_from_slice(&24u32.to_le_bytes());
+    b.extend_from_slice(&24u32.to_le_bytes());
+    b.extend_from_slice(&[0x3f; 24]);
+    b.push(1);
+    b
+}
+
+#[test]
+fn seed_decodes() {
+    let c = decode_cloud(MessageKind::PointCloud2, Encoding::Cdr, &pointcloud_seed()).unwrap();
+    assert_eq!(c.points.len(), 2);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 20_000, ..ProptestConfig::default() })]
+
+    #[test]
+    fn arbitrary_bytes_never_panic(data in proptest::collection::vec(any::<u8>(), 0..256),
+                                   kind in 0usize..7, ros1 in any::<bool>()) {
+        let encoding = if ros1 { Encoding::Ros1 } else { Encoding::Cdr };
+        decode_any(KINDS[kind], encoding, &data);
+    }
+
+    #[test]
+    fn mutated_pointclouds_never_panic(flips in proptest::collection::vec((0usize..160, any::<u8>()), 1..8),
+                                       cut in 0usize..200) {
+        let mut data = pointcloud_seed();
+        for (i, v) in flips {
+            if let Some(b) = data.get_mut(i) { *b = v; }
+        }
+        data.truncate(cut.max(4));
+        decode_any(MessageKind::PointCloud2, Encoding::Cdr, &data);
+    }
+}
