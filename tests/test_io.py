@@ -517,7 +517,7 @@ def test_tum_odometry_path(tmp_path):
         for t in np.arange(0.0, 1.0, 0.05)
     ]
     tum.write_text("# stamp tx ty tz qx qy qz qw\n" + "\n".join(rows) + "\n")
-    np.testing.assert_allclose(decod_rs.read_tum(tum)[:, 0], np.arange(0.0, 1.0, 0.05))
+    np.testing.assert_allclose(decod_rs.io.read_tum(tum)[:, 0], np.arange(0.0, 1.0, 0.05))
     reader = decod_rs.read_log(log, odom_tum=tum)
     scans = list(reader)
     inside = [t for t in clouds if t <= 0.95 + 1e-9]
