@@ -67,6 +67,16 @@ pub struct ContourConfig {
     pub inlier_distance_m: f64,
     /// Minimum fraction of projected points within `inlier_distance_m`.
     pub min_inlier_fraction: f64,
+    /// Points used by the fit (an even stride over the cloud; validation uses all points).
+    /// 20k pin a 0.3 m circle to < 0.1 mm on the test pipes and keep the fit < 2 ms.
+    pub max_fit_points: usize,
+    /// Angular bins of the polar contour (2 deg at 180): fine enough for a wall/floor corner.
+    pub polar_bins: usize,
+    /// Circular Gaussian smoothing of the polar radii, sigma in bins.
+    pub polar_smoothing_bins: f64,
+    /// `auto` picks the polar contour only if its median |offset| is below this fraction of
+    /// the circle's: on noisy circles the ratio is ~0.95, on the test horseshoe ~0.02.
+    pub auto_polar_ratio: f64,
 }
 
 /// Boundary detection on the axial offset profile (paper §III-A, §IV-A.2).
@@ -83,6 +93,12 @@ pub struct BoundaryConfig {
     pub nms_radius_m: f64,
     /// Minimum DoG response to keep a peak, metres of offset.
     pub min_strength_m: f64,
+    /// Circumferential sectors of the profile; each sector's median offset is subtracted so
+    /// that partially observed cross-sections do not make steps (not in the paper).
+    pub profile_sectors: usize,
+    /// A peak must also exceed this many robust sigmas (1.4826 MAD) of the DoG profile:
+    /// adapts the threshold to the wall's clutter (not in the paper).
+    pub min_snr: f64,
 }
 
 /// Descriptor grid (paper §III-A, §IV-A.2).
@@ -193,6 +209,10 @@ impl DecodConfig {
                 model: "auto".into(),
                 inlier_distance_m: 0.18,
                 min_inlier_fraction: 0.9,
+                max_fit_points: 20_000,
+                polar_bins: 180,
+                polar_smoothing_bins: 1.5,
+                auto_polar_ratio: 0.5,
             },
             boundary: BoundaryConfig {
                 profile_bin_m: 0.01,
@@ -200,6 +220,8 @@ impl DecodConfig {
                 dog_sigma_large_m: 0.10,
                 nms_radius_m: 0.8,
                 min_strength_m: 0.002,
+                profile_sectors: 32,
+                min_snr: 5.0,
             },
             descriptor: DescriptorConfig {
                 rows: 16,

@@ -1,1 +1,320 @@
-//! (extraction, issue 2: filled by the extraction work)
+//! The per-submap extraction pipeline (paper §III-A, Fig. 2 left and middle):
+//! axis -> basis -> contour -> boundaries -> descriptors. Every submap yields landmarks or
+//! rejections with their reasons (nothing is dropped silently), plus diagnostics.
+
+use std::fmt;
+
+use rayon::prelude::*;
+
+use crate::axis::{estimate_axis, transverse_basis};
+use crate::boundary::{ChartPoint, detect_boundaries};
+use crate::config::DecodConfig;
+use crate::contour::fit_contour;
+use crate::descriptor::{bottom_mask, build_descriptor, column_samples};
+use crate::landmark::Landmark;
+use crate::submap::Submap;
+
+/// Why a submap (or a boundary in it) yielded no landmark.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RejectionReason {
+    /// Fewer points than `submap.min_points` after filtering.
+    TooFewPoints {
+        /// Points in the submap.
+        count: usize,
+        /// Required minimum.
+        min: usize,
+    },
+    /// The ratio of the two largest singular values is below `axis.min_elongation`.
+    NotElongated {
+        /// Measured ratio.
+        ratio: f64,
+        /// Required minimum.
+        min: f64,
+    },
+    /// Gravity is along the corridor axis: no circumferential origin (vertical shaft).
+    GravityAlongAxis,
+    /// Too few projected points lie near the fitted contour.
+    ContourMisfit {
+        /// Fraction within `contour.inlier_distance_m`.
+        inlier_fraction: f64,
+        /// Required minimum.
+        min: f64,
+    },
+    /// The DoG profile has no peak above the threshold.
+    NoBoundary {
+        /// The threshold that applied, metres.
+        threshold_m: f64,
+    },
+    /// A boundary was found but its descriptor has no observed cell.
+    EmptyDescriptor {
+        /// Axial position of the boundary from the submap centroid, metres.
+        z_m: f64,
+    },
+    /// The geometry could not be computed (degenerate input); the text says why.
+    Degenerate(String),
+}
+
+/// A submap or boundary that yielded no landmark, and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rejection {
+    /// Anchor stamp of the submap, seconds.
+    pub submap_stamp: f64,
+    /// The reason.
+    pub reason: RejectionReason,
+}
+
+impl RejectionReason {
+    /// Short machine-readable kind (`"too_few_points"`, `"not_elongated"`, ...).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::TooFewPoints { .. } => "too_few_points",
+            Self::NotElongated { .. } => "not_elongated",
+            Self::GravityAlongAxis => "gravity_along_axis",
+            Self::ContourMisfit { .. } => "contour_misfit",
+            Self::NoBoundary { .. } => "no_boundary",
+            Self::EmptyDescriptor { .. } => "empty_descriptor",
+            Self::Degenerate(_) => "degenerate",
+        }
+    }
+}
+
+impl fmt::Display for RejectionReason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::TooFewPoints { count, min } => {
+                write!(f, "too few points: {count} < submap.min_points = {min}")
+            }
+            Self::NotElongated { ratio, min } => write!(
+                f,
+                "not a corridor: singular value ratio {ratio:.2} < axis.min_elongation = {min}"
+            ),
+            Self::GravityAlongAxis => write!(f, "gravity is along the corridor axis"),
+            Self::ContourMisfit {
+                inlier_fraction,
+                min,
+            } => write!(
+                f,
+                "contour does not fit: {:.1} % of points near it < contour.min_inlier_fraction = {:.1} %",
+                100.0 * inlier_fraction,
+                100.0 * min
+            ),
+            Self::NoBoundary { threshold_m } => write!(
+                f,
+                "no boundary: no DoG peak above {:.2} mm",
+                1e3 * threshold_m
+            ),
+            Self::EmptyDescriptor { z_m } => {
+                write!(
+                    f,
+                    "boundary at z = {z_m:.3} m has no observed descriptor cell"
+                )
+            }
+            Self::Degenerate(why) => write!(f, "degenerate geometry: {why}"),
+        }
+    }
+}
+
+impl fmt::Display for Rejection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "submap {:.3}: {}", self.submap_stamp, self.reason)
+    }
+}
+
+/// What extraction saw in one submap (filled as far as the pipeline got).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SubmapDiagnostics {
+    /// Points in the submap.
+    pub point_count: usize,
+    /// Corridor axis in the submap frame (zeros if not reached).
+    pub axis: [f64; 3],
+    /// Centroid of the submap, metres.
+    pub centroid: [f64; 3],
+    /// Ratio of the two largest singular values.
+    pub elongation: f64,
+    /// `"circle"` or `"polar"` (empty if not reached).
+    pub contour_model: String,
+    /// Contour centre along `(e1, e2)` from the centroid, metres.
+    pub contour_centre_e1e2: [f64; 2],
+    /// Mean contour radius, metres.
+    pub contour_radius_m: f64,
+    /// Fraction of projected points within `contour.inlier_distance_m`.
+    pub contour_inlier_fraction: f64,
+    /// Median absolute offset from the contour, metres.
+    pub contour_median_abs_offset_m: f64,
+    /// Local DoG maxima above threshold before non-maximum suppression.
+    pub boundary_candidates: usize,
+    /// Robust spread of the DoG profile, metres.
+    pub dog_sigma_m: f64,
+    /// Peak threshold applied, metres.
+    pub dog_threshold_m: f64,
+}
+
+/// Landmarks, rejections and diagnostics of one submap.
+#[derive(Clone, Debug, Default)]
+pub struct ExtractionOutcome {
+    /// One landmark per accepted boundary, strongest first.
+    pub landmarks: Vec<Landmark>,
+    /// Every reason something yielded no landmark.
+    pub rejections: Vec<Rejection>,
+    /// What the pipeline measured.
+    pub diagnostics: SubmapDiagnostics,
+}
+
+/// Runs the extraction pipeline on one submap (paper §III-A):
+/// 1. point count check;
+/// 2. axis by PCA, oriented with forward; elongation check (`axis.min_elongation`);
+/// 3. basis `e1, e2` from gravity (Eq. 1);
+/// 4. projection on the transverse plane, contour fit and validation (§IV-A.2);
+/// 5. unrolling of every point to `(z, p, s)` once;
+/// 6. boundaries by DoG + NMS on the axial profile;
+/// 7. one descriptor per boundary, origin `o` = contour centre at the peak.
+pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcome {
+    let mut out = ExtractionOutcome::default();
+    let stamp = submap.anchor_stamp;
+    let reject = |out: &mut ExtractionOutcome, reason| {
+        out.rejections.push(Rejection {
+            submap_stamp: stamp,
+            reason,
+        })
+    };
+    let points = &submap.points_in_anchor;
+    out.diagnostics.point_count = points.len();
+    if points.len() < cfg.submap.min_points.max(3) {
+        let reason = RejectionReason::TooFewPoints {
+            count: points.len(),
+            min: cfg.submap.min_points.max(3),
+        };
+        reject(&mut out, reason);
+        return out;
+    }
+    // 2. Axis.
+    let axis = match estimate_axis(points, submap.forward_in_anchor) {
+        Ok(a) => a,
+        Err(e) => {
+            reject(&mut out, RejectionReason::Degenerate(e.to_string()));
+            return out;
+        }
+    };
+    out.diagnostics.axis = axis.axis;
+    out.diagnostics.centroid = axis.centroid;
+    out.diagnostics.elongation = axis.elongation;
+    if !(axis.elongation >= cfg.axis.min_elongation) {
+        let reason = RejectionReason::NotElongated {
+            ratio: axis.elongation,
+            min: cfg.axis.min_elongation,
+        };
+        reject(&mut out, reason);
+        return out;
+    }
+    // 3. Basis.
+    let Ok((e1, e2)) = transverse_basis(axis.axis, submap.gravity_in_anchor) else {
+        reject(&mut out, RejectionReason::GravityAlongAxis);
+        return out;
+    };
+    // 4. Projection and contour.
+    let a = axis.axis;
+    let c = axis.centroid;
+    let dot = |u: &[f64; 3], v: &[f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    let mut uv = Vec::with_capacity(points.len());
+    let mut z = Vec::with_capacity(points.len());
+    for p in points {
+        let d = [p[0] as f64 - c[0], p[1] as f64 - c[1], p[2] as f64 - c[2]];
+        uv.push([dot(&d, &e1), dot(&d, &e2)]);
+        z.push(dot(&d, &a));
+    }
+    let fit = match fit_contour(&uv, &cfg.contour) {
+        Ok(f) => f,
+        Err(e) => {
+            reject(&mut out, RejectionReason::Degenerate(e.to_string()));
+            return out;
+        }
+    };
+    let contour = &fit.contour;
+    let diag = &mut out.diagnostics;
+    diag.contour_model = contour.model.name().to_string();
+    diag.contour_centre_e1e2 = contour.centre_uv;
+    diag.contour_radius_m = contour.mean_radius_m;
+    diag.contour_inlier_fraction = fit.inlier_fraction;
+    diag.contour_median_abs_offset_m = fit.median_abs_offset_m;
+    if fit.inlier_fraction < cfg.contour.min_inlier_fraction {
+        let reason = RejectionReason::ContourMisfit {
+            inlier_fraction: fit.inlier_fraction,
+            min: cfg.contour.min_inlier_fraction,
+        };
+        reject(&mut out, reason);
+        return out;
+    }
+    // 5. Unroll once.
+    let chart: Vec<ChartPoint> = uv
+        .iter()
+        .zip(&z)
+        .map(|(&x, &z)| {
+            let u = contour.unroll(x);
+            ChartPoint { z, p: u.p, s: u.s }
+        })
+        .collect();
+    drop(uv);
+    // 6. Boundaries.
+    let detection = match detect_boundaries(
+        &chart,
+        contour,
+        cfg.descriptor.bottom_mask_deg,
+        &cfg.boundary,
+    ) {
+        Ok(d) => d,
+        Err(e) => {
+            reject(&mut out, RejectionReason::Degenerate(e.to_string()));
+            return out;
+        }
+    };
+    out.diagnostics.boundary_candidates = detection.candidates;
+    out.diagnostics.dog_sigma_m = detection.dog_sigma_m;
+    out.diagnostics.dog_threshold_m = detection.threshold_m;
+    if detection.peaks.is_empty() {
+        let reason = RejectionReason::NoBoundary {
+            threshold_m: detection.threshold_m,
+        };
+        reject(&mut out, reason);
+        return out;
+    }
+    // 7. Descriptors.
+    let columns = column_samples(contour, cfg.descriptor.cols);
+    let masked = bottom_mask(&columns, cfg.descriptor.bottom_mask_deg);
+    let [cu, cv] = contour.centre_uv;
+    for peak in &detection.peaks {
+        let descriptor = build_descriptor(
+            &chart,
+            peak.z_m,
+            contour,
+            &columns,
+            &masked,
+            &cfg.descriptor,
+        );
+        if descriptor.observed_count() == 0 {
+            reject(&mut out, RejectionReason::EmptyDescriptor { z_m: peak.z_m });
+            continue;
+        }
+        let origin = std::array::from_fn(|i| c[i] + cu * e1[i] + cv * e2[i] + peak.z_m * a[i]);
+        out.landmarks.push(Landmark {
+            submap_stamp: stamp,
+            scan_stamps: submap.scan_stamps.clone(),
+            origin_in_submap: origin,
+            axis_in_submap: a,
+            e1_in_submap: e1,
+            e2_in_submap: e2,
+            contour_e1e2_m: columns.iter().map(|s| s.point).collect(),
+            radius_m: contour.mean_radius_m,
+            strength: peak.strength_m,
+            descriptor,
+        });
+    }
+    out
+}
+
+/// [`extract_landmarks`] over many submaps in parallel (rayon); results in input order.
+pub fn extract_all(submaps: &[Submap], cfg: &DecodConfig) -> Vec<ExtractionOutcome> {
+    submaps
+        .par_iter()
+        .map(|m| extract_landmarks(m, cfg))
+        .collect()
+}
