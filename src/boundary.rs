@@ -156,7 +156,10 @@ pub fn detect_boundaries(
     let threshold = cfg.min_strength_m.max(cfg.min_snr * dog_sigma);
     let mut candidates: Vec<usize> = (1..nbins.saturating_sub(1))
         .filter(|&b| {
-            valid[b]
+            // Both neighbours valid: a slope cut by the edge margin is not a maximum.
+            valid[b - 1]
+                && valid[b]
+                && valid[b + 1]
                 && dog[b].abs() >= threshold
                 && dog[b].abs() >= dog[b - 1].abs()
                 && dog[b].abs() > dog[b + 1].abs()

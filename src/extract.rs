@@ -6,7 +6,7 @@ use std::fmt;
 
 use rayon::prelude::*;
 
-use crate::axis::{estimate_axis, transverse_basis};
+use crate::axis::{estimate_axis, refine_axis, transverse_basis};
 use crate::boundary::{ChartPoint, detect_boundaries};
 use crate::config::DecodConfig;
 use crate::contour::fit_contour;
@@ -206,29 +206,51 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         reject(&mut out, reason);
         return out;
     }
-    // 3. Basis.
-    let Ok((e1, e2)) = transverse_basis(axis.axis, submap.gravity_in_anchor) else {
-        reject(&mut out, RejectionReason::GravityAlongAxis);
-        return out;
-    };
-    // 4. Projection and contour.
-    let a = axis.axis;
+    // 3-4. Basis (Eq. 1), projection on the transverse plane, contour fit; then
+    // `axis.refine_iterations` Gauss-Newton steps on the axis from the contour residuals.
     let c = axis.centroid;
-    let dot = |u: &[f64; 3], v: &[f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-    let mut uv = Vec::with_capacity(points.len());
-    let mut z = Vec::with_capacity(points.len());
-    for p in points {
-        let d = [p[0] as f64 - c[0], p[1] as f64 - c[1], p[2] as f64 - c[2]];
-        uv.push([dot(&d, &e1), dot(&d, &e2)]);
-        z.push(dot(&d, &a));
-    }
-    let fit = match fit_contour(&uv, &cfg.contour) {
-        Ok(f) => f,
-        Err(e) => {
-            reject(&mut out, RejectionReason::Degenerate(e.to_string()));
+    let mut a = axis.axis;
+    let mut refine_left = cfg.axis.refine_iterations;
+    let (e1, e2, uv, z, fit) = loop {
+        let Ok((e1, e2)) = transverse_basis(a, submap.gravity_in_anchor) else {
+            reject(&mut out, RejectionReason::GravityAlongAxis);
             return out;
+        };
+        let (uv, z) = project(points, c, a, e1, e2);
+        let fit = match fit_contour(&uv, &cfg.contour) {
+            Ok(f) => f,
+            Err(e) => {
+                reject(&mut out, RejectionReason::Degenerate(e.to_string()));
+                return out;
+            }
+        };
+        if refine_left == 0 {
+            break (e1, e2, uv, z, fit);
+        }
+        refine_left -= 1;
+        let stride = uv.len().div_ceil(cfg.contour.max_fit_points.max(3)).max(1);
+        let contour = &fit.contour;
+        let samples = uv.iter().zip(&z).step_by(stride).map(|(&x, &z)| {
+            let u = contour.unroll(x);
+            let n = contour.sample(u.p).normal;
+            (z, n[0], n[1], u.s)
+        });
+        // Inliers: within 3 robust sigmas (1.4826 MAD) of the contour.
+        let gate = 3.0 * 1.4826 * fit.median_abs_offset_m;
+        match refine_axis(a, e1, e2, samples, gate.max(1e-6)) {
+            Some(refined) => {
+                let f = submap.forward_in_anchor;
+                let sign = if refined[0] * f[0] + refined[1] * f[1] + refined[2] * f[2] < 0.0 {
+                    -1.0
+                } else {
+                    1.0
+                };
+                a = refined.map(|v| sign * v);
+            }
+            None => break (e1, e2, uv, z, fit),
         }
     };
+    out.diagnostics.axis = a;
     let contour = &fit.contour;
     let diag = &mut out.diagnostics;
     diag.contour_model = contour.model.name().to_string();
@@ -309,6 +331,29 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         });
     }
     out
+}
+
+/// Transverse `(e1, e2)` coordinates and axial `z` of every point relative to `centroid`.
+fn project(
+    points: &[[f32; 3]],
+    centroid: [f64; 3],
+    a: [f64; 3],
+    e1: [f64; 3],
+    e2: [f64; 3],
+) -> (Vec<[f64; 2]>, Vec<f64>) {
+    let dot = |u: &[f64; 3], v: &[f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    let mut uv = Vec::with_capacity(points.len());
+    let mut z = Vec::with_capacity(points.len());
+    for p in points {
+        let d = [
+            p[0] as f64 - centroid[0],
+            p[1] as f64 - centroid[1],
+            p[2] as f64 - centroid[2],
+        ];
+        uv.push([dot(&d, &e1), dot(&d, &e2)]);
+        z.push(dot(&d, &a));
+    }
+    (uv, z)
 }
 
 /// [`extract_landmarks`] over many submaps in parallel (rayon); results in input order.

@@ -233,6 +233,7 @@ impl SubmapBuilder {
                 ),
             ));
         }
+        validate_scans(std::slice::from_ref(&scan))?;
         self.last_stamp = scan.stamp;
         if self.window.is_empty() {
             match self.next_start_s {

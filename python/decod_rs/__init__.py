@@ -31,3 +31,32 @@ __all__ = [
     "load_config",
 ]
 # Each layer appends its public names below (one block per layer keeps merges clean).
+
+# --- extraction (issue 2) -----------------------------------------------------------------
+from decod_rs.extraction import (  # noqa: E402
+    ExtractionResult,
+    Rejection,
+    Submap,
+    SubmapBuilder,
+    SubmapDiagnostics,
+    build_submap,
+    extract_landmarks,
+    extract_submap,
+    extract_submaps,
+    submap_builder,
+    submap_from_points,
+)
+
+__all__ += [
+    "ExtractionResult",
+    "Rejection",
+    "Submap",
+    "SubmapBuilder",
+    "SubmapDiagnostics",
+    "build_submap",
+    "extract_landmarks",
+    "extract_submap",
+    "extract_submaps",
+    "submap_builder",
+    "submap_from_points",
+]
