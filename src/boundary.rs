@@ -154,15 +154,15 @@ pub fn detect_boundaries(
     let mut spread: Vec<f64> = (0..nbins).filter(|&b| valid[b]).map(|b| dog[b]).collect();
     let dog_sigma = 1.4826 * median_abs(&mut spread);
     let threshold = cfg.min_strength_m.max(cfg.min_snr * dog_sigma);
-    let mut candidates: Vec<usize> = (1..nbins.saturating_sub(1))
+    // A candidate is the maximum of |DoG| over +-1 large sigma, all of it valid: a slope cut
+    // by the edge margin (the true maximum may lie beyond it) is not a peak.
+    let w = (cfg.dog_sigma_large_m / bin).ceil().max(1.0) as usize;
+    let mut candidates: Vec<usize> = (w..nbins.saturating_sub(w))
         .filter(|&b| {
-            // Both neighbours valid: a slope cut by the edge margin is not a maximum.
-            valid[b - 1]
-                && valid[b]
-                && valid[b + 1]
-                && dog[b].abs() >= threshold
-                && dog[b].abs() >= dog[b - 1].abs()
-                && dog[b].abs() > dog[b + 1].abs()
+            let m = dog[b].abs();
+            m >= threshold
+                && (b - w..=b + w)
+                    .all(|j| valid[j] && (dog[j].abs() < m || (j <= b && dog[j].abs() <= m)))
         })
         .collect();
     let candidate_count = candidates.len();
