@@ -110,7 +110,7 @@ pub fn transverse_basis(axis: [f64; 3], gravity: [f64; 3]) -> Result<([f64; 3], 
     let g = Vector3::from(gravity);
     let projected = g - a * a.dot(&g);
     let norm = projected.norm();
-    if !(norm > 1e-3 * g.norm()) {
+    if norm.is_nan() || norm <= 1e-3 * g.norm() {
         return Err(DecodError::invalid(
             "gravity",
             "is parallel to the corridor axis: no circumferential origin (vertical shaft)",

@@ -15,6 +15,7 @@
 //!    the data do not create responses;
 //! 4. a peak must exceed both `min_strength_m` and `min_snr` times the robust spread
 //!    (1.4826 MAD) of the DoG over the submap, which adapts to the wall's clutter.
+//!
 //! The bottom sector masked in the descriptor (`descriptor.bottom_mask_deg`, ground returns
 //! and debris) is left out of the profile too.
 

@@ -65,9 +65,9 @@ pub fn build_descriptor(
     let min_points = cfg.min_points_per_cell.max(1) as u32;
     let mut observed = vec![false; rows * cols];
     for r in 0..rows {
-        for c in 0..cols {
+        for (c, &masked_column) in masked.iter().enumerate().take(cols) {
             let i = r * cols + c;
-            if count[i] >= min_points && !masked[c] {
+            if count[i] >= min_points && !masked_column {
                 observed[i] = true;
                 sum[i] /= count[i] as f64;
             } else {

@@ -198,7 +198,7 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
     out.diagnostics.axis = axis.axis;
     out.diagnostics.centroid = axis.centroid;
     out.diagnostics.elongation = axis.elongation;
-    if !(axis.elongation >= cfg.axis.min_elongation) {
+    if axis.elongation.is_nan() || axis.elongation < cfg.axis.min_elongation {
         let reason = RejectionReason::NotElongated {
             ratio: axis.elongation,
             min: cfg.axis.min_elongation,

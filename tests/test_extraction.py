@@ -209,7 +209,7 @@ def test_bad_input_raises_value_errors_naming_the_argument():
         decod_rs.build_submap(stamps, clouds, skewed)
     with pytest.raises(ValueError, match=r"`specific_force` must have shape \(3, 3\)"):
         decod_rs.build_submap(stamps, clouds, poses, specific_force=np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="scans\\[2\\].stamp"):
+    with pytest.raises(ValueError, match=r"scans\[2\]\.stamp"):
         decod_rs.build_submap(np.array([0.0, 2.0, 1.0]), clouds, poses)
     with pytest.raises(decod_rs.ConfigError):
         decod_rs.extract_landmarks(pts, config="sewer")
@@ -245,7 +245,10 @@ def test_submap_builder_streams_on_schedule():
     rng = np.random.default_rng(6)
     log = sa.pipe_drive(rng, n_scans=105, points_per_scan=500)
     builder = decod_rs.submap_builder("pipe")  # 20 scans every 8 s; 10 Hz scans
-    out = [builder.push(t, p, pose) for t, p, pose in zip(log.stamps, log.points, log.poses)]
+    out = [
+        builder.push(t, p, pose)
+        for t, p, pose in zip(log.stamps, log.points, log.poses, strict=True)
+    ]
     submaps = [m for m in out if m is not None]
     last = builder.finish()
     assert [m.anchor_stamp for m in submaps] == pytest.approx([1.0, 9.0])

@@ -33,7 +33,7 @@ __all__ = [
 # Each layer appends its public names below (one block per layer keeps merges clean).
 
 # --- extraction (issue 2) -----------------------------------------------------------------
-from decod_rs.extraction import (  # noqa: E402
+from decod_rs.extraction import (
     ExtractionResult,
     Rejection,
     Submap,

@@ -43,9 +43,7 @@ def config_json(config: Config | str) -> str:
     """The config as the JSON the core reads: a preset name or a resolved ``Config``."""
     if isinstance(config, str):
         if config not in PRESETS:
-            raise _core.ConfigError(
-                f"invalid config `preset`: {config!r} is not one of {PRESETS}"
-            )
+            raise _core.ConfigError(f"invalid config `preset`: {config!r} is not one of {PRESETS}")
         return _core.resolve_config_json(config)
     if isinstance(config, Config):
         return json.dumps(config.to_dict())

@@ -80,9 +80,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _row(
-    submap: Submap, result: ExtractionResult, joints: np.ndarray, errors: list[float]
-) -> str:
+def _row(submap: Submap, result: ExtractionResult, joints: np.ndarray, errors: list[float]) -> str:
     d = result.diagnostics
     pose = submap.world_from_anchor
     axis_world = pose[:3, :3] @ np.asarray(d.axis)
