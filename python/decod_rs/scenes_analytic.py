@@ -31,6 +31,23 @@ def groove_depth(theta: Array, depth_m: float) -> Array:
     return depth_m * (1.0 + 0.4 * np.cos(theta))
 
 
+def wall_clutter(
+    rng: np.random.Generator, x: Array, theta: Array, std_m: float, waves: int = 40
+) -> Array:
+    """Correlated wall roughness of standard deviation ``std_m``: a sum of ``waves`` random
+    waves with axial wavelengths of 2-30 cm and circumferential orders 0-6 (order 0 is what
+    survives the circumferential averaging of the boundary profile)."""
+    if std_m <= 0.0:
+        return np.zeros_like(x)
+    wavelength = rng.uniform(0.02, 0.3, waves)
+    order = rng.integers(0, 7, waves)
+    phase = rng.uniform(0.0, 2 * np.pi, waves)
+    out = np.zeros_like(x)
+    for lam, m, ph in zip(wavelength, order, phase, strict=True):
+        out += np.sin(2 * np.pi * x / lam + m * theta + ph)
+    return out * std_m * np.sqrt(2.0 / waves)
+
+
 def pipe(
     rng: np.random.Generator,
     *,
@@ -158,10 +175,14 @@ def pipe_drive(
     groove_width_m: float = 0.012,
     groove_depth_m: float = 0.003,
     noise_m: float = 0.0003,
+    clutter_m: float = 0.0,
 ) -> ScanLog:
     """A crawler driving along a pipe (axis = world ``+x``, centre at ``y = z = 0``) with a
     forward-looking sensor that sees the wall ``view_m`` ahead; small lateral and roll
-    wobble. Joints (grooves) every ``joint_spacing_m``; poses are ground truth."""
+    wobble. Joints (grooves) every ``joint_spacing_m``; ``clutter_m`` of wall roughness
+    (``wall_clutter``, fixed for the drive); poses are ground truth."""
+    wall_rng = np.random.default_rng(rng.integers(2**63))
+    wall_state = wall_rng.bit_generator.state
     joints = list(np.arange(joint_spacing_m / 2, length_m, joint_spacing_m))
     stamps = np.arange(n_scans) / rate_hz
     poses = np.zeros((n_scans, 4, 4))
@@ -174,6 +195,8 @@ def pipe_drive(
         x = rng.uniform(pos[0] + view_m[0], pos[0] + view_m[1], points_per_scan)
         theta = rng.uniform(0.0, 2 * np.pi, points_per_scan)
         offset = rng.normal(0.0, noise_m, points_per_scan)
+        wall_rng.bit_generator.state = wall_state  # the same wall in every scan
+        offset += wall_clutter(wall_rng, x, theta, clutter_m)
         for xj in joints:
             inside = np.abs(x - xj) < groove_width_m / 2
             offset[inside] += groove_depth(theta[inside], groove_depth_m)
