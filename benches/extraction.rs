@@ -41,6 +41,33 @@ fn pipe_submap(n: usize) -> Submap {
         .unwrap_or_else(|e| unreachable!("{e}"))
 }
 
+/// A 20 m horseshoe tunnel (3 m vault, flat floor 2 m below the centre) with 10 cm steel
+/// arches every 1.2 m: the polar-contour path of the tunnel preset.
+fn horseshoe_submap(n: usize) -> Submap {
+    let points = (0..n)
+        .map(|i| {
+            let x = -10.0 + 20.0 * (i as f64 + 0.5) / n as f64;
+            let t = (i as f64 * 0.618_033_988_7).fract() * std::f64::consts::TAU;
+            let c = t.cos();
+            let noise = 0.01 * ((i * 7919 % 17) as f64 / 8.0 - 1.0);
+            let on_floor = c > 2.0 / 3.0;
+            let arch = !on_floor && ((x + 10.0).rem_euclid(1.2) - 0.6).abs() < 0.075;
+            let r = if on_floor {
+                2.0 / c
+            } else {
+                3.0 - if arch { 0.1 } else { 0.0 }
+            };
+            [
+                x as f32,
+                ((r + noise) * t.sin()) as f32,
+                (-(r + noise) * c) as f32,
+            ]
+        })
+        .collect();
+    Submap::from_points(0.0, points, [0.0, 0.0, -1.0], [1.0, 0.0, 0.0])
+        .unwrap_or_else(|e| unreachable!("{e}"))
+}
+
 fn bench(c: &mut Criterion) {
     let cfg = DecodConfig::pipe();
     let mut group = c.benchmark_group("extraction");
@@ -54,6 +81,12 @@ fn bench(c: &mut Criterion) {
             b.iter(|| estimate_axis(&submap.points_in_anchor, [1.0, 0.0, 0.0]))
         });
     }
+    let submap = horseshoe_submap(100_000);
+    let tunnel = DecodConfig::tunnel();
+    group.throughput(Throughput::Elements(100_000));
+    group.bench_function("extract_landmarks_horseshoe/100000", |b| {
+        b.iter(|| extract_landmarks(std::hint::black_box(&submap), &tunnel))
+    });
     group.finish();
 }
 

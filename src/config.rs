@@ -72,7 +72,8 @@ pub struct ContourConfig {
     /// Minimum fraction of projected points within `inlier_distance_m`.
     pub min_inlier_fraction: f64,
     /// Points used by the fit (an even stride over the cloud; validation uses all points).
-    /// 10k pin a 0.3 m circle to < 0.05 mm on the test pipes and keep each fit < 1 ms.
+    /// 5k pin a 0.3 m circle to < 0.05 mm and the axis to < 0.01 deg on the test pipes,
+    /// and keep each fit well under 1 ms.
     pub max_fit_points: usize,
     /// Angular bins of the polar contour (2 deg at 180): fine enough for a wall/floor corner.
     pub polar_bins: usize,
@@ -218,7 +219,7 @@ impl DecodConfig {
                 model: "auto".into(),
                 inlier_distance_m: 0.18,
                 min_inlier_fraction: 0.9,
-                max_fit_points: 10_000,
+                max_fit_points: 5_000,
                 polar_bins: 180,
                 polar_smoothing_bins: 1.5,
                 auto_polar_ratio: 0.5,

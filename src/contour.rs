@@ -169,7 +169,9 @@ impl ReferenceContour {
         let (n0, n1) = (self.normal[k], self.normal[k + 1]);
         let (nx, ny) = (n0[0] * (1.0 - w) + n1[0] * w, n0[1] * (1.0 - w) + n1[1] * w);
         let nn = (nx * nx + ny * ny).sqrt().max(1e-12);
-        let (cx, cy) = (r * theta.cos(), r * theta.sin());
+        // c(theta) = r(theta) times the point's own unit direction (no sin/cos needed).
+        let rho = (x * x + y * y).sqrt().max(1e-12);
+        let (cx, cy) = (r * x / rho, r * y / rho);
         let p = self.arclength[k] * (1.0 - w) + self.arclength[k + 1] * w;
         Unrolled {
             p: p.min(1.0 - 1e-12),
@@ -239,7 +241,13 @@ pub fn fit_circle(uv: &[[f64; 2]]) -> Result<([f64; 2], f64)> {
         for (res, &[u, v]) in residuals.iter_mut().zip(uv) {
             *res = ((u - cx).powi(2) + (v - cy).powi(2)).sqrt() - r;
         }
-        let scale = (1.4826 * median_abs(&mut residuals.clone())).max(1e-6);
+        // Robust scale from at most ~2000 residuals (an even stride): plenty for a MAD.
+        let mut sample: Vec<f64> = residuals
+            .iter()
+            .step_by(residuals.len().div_ceil(2000).max(1))
+            .copied()
+            .collect();
+        let scale = (1.4826 * median_abs(&mut sample)).max(1e-6);
         let k = 1.345 * scale;
         let mut h = nalgebra::Matrix3::<f64>::zeros();
         let mut g = nalgebra::Vector3::<f64>::zeros();

@@ -164,7 +164,9 @@ pub struct ExtractionOutcome {
 /// 1. point count check;
 /// 2. axis by PCA, oriented with forward; elongation check (`axis.min_elongation`);
 /// 3. basis `e1, e2` from gravity (Eq. 1);
-/// 4. projection on the transverse plane, contour fit and validation (§IV-A.2);
+/// 4. projection on the transverse plane and contour fit, with `axis.refine_iterations`
+///    Gauss–Newton refinements of the axis from the contour residuals (`axis::refine_axis`);
+///    contour validation on every point (§IV-A.2);
 /// 5. unrolling of every point to `(z, p, s)` once;
 /// 6. boundaries by DoG + NMS on the axial profile;
 /// 7. one descriptor per boundary, origin `o` = contour centre at the peak.
@@ -218,19 +220,22 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         .max(1);
     let subset: Vec<[f32; 3]> = points.iter().step_by(stride).copied().collect();
     let mut refine_left = cfg.axis.refine_iterations;
+    // `auto` chooses the model on the first fit; refinements keep that model.
+    let mut contour_cfg = cfg.contour.clone();
     let (e1, e2, fit) = loop {
         let Ok((e1, e2)) = transverse_basis(a, submap.gravity_in_anchor) else {
             reject(&mut out, RejectionReason::GravityAlongAxis);
             return out;
         };
         let (uv, z) = project(&subset, c, a, e1, e2);
-        let fit = match fit_contour(&uv, &cfg.contour) {
+        let fit = match fit_contour(&uv, &contour_cfg) {
             Ok(f) => f,
             Err(e) => {
                 reject(&mut out, RejectionReason::Degenerate(e.to_string()));
                 return out;
             }
         };
+        contour_cfg.model = fit.contour.model.name().to_string();
         if refine_left == 0 {
             break (e1, e2, fit);
         }
@@ -274,6 +279,12 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
             }
         })
         .collect();
+    // Bucket the chart by axial descriptor cell (counting sort, O(N)) so that each
+    // descriptor reads only the points within its +-half_length window.
+    let (chart, bucket_start, z_lo, bucket_m) = bucket_by_z(
+        chart,
+        cfg.descriptor.half_length_m * 2.0 / cfg.descriptor.rows.max(1) as f64,
+    );
     let inliers = chart
         .iter()
         .filter(|q| q.s.abs() <= cfg.contour.inlier_distance_m)
@@ -321,8 +332,18 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
     let masked = bottom_mask(&columns, cfg.descriptor.bottom_mask_deg);
     let [cu, cv] = contour.centre_uv;
     for peak in &detection.peaks {
+        let first = (((peak.z_m - cfg.descriptor.half_length_m - z_lo) / bucket_m)
+            .floor()
+            .max(0.0) as usize)
+            .min(bucket_start.len() - 1);
+        let last = (((peak.z_m + cfg.descriptor.half_length_m - z_lo) / bucket_m)
+            .floor()
+            .max(0.0) as usize
+            + 1)
+        .min(bucket_start.len() - 1);
+        let window = &chart[bucket_start[first]..bucket_start[last]];
         let descriptor = build_descriptor(
-            &chart,
+            window,
             peak.z_m,
             contour,
             &columns,
@@ -348,6 +369,40 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         });
     }
     out
+}
+
+/// Counting sort of `chart` by `floor((z - z_min) / bucket_m)`. Returns the sorted points,
+/// the start index of each bucket (`len = buckets + 1`, last = `chart.len()`), `z_min` and
+/// the bucket size.
+fn bucket_by_z(chart: Vec<ChartPoint>, bucket_m: f64) -> (Vec<ChartPoint>, Vec<usize>, f64, f64) {
+    let z_min = chart.iter().map(|q| q.z).fold(f64::INFINITY, f64::min);
+    let z_max = chart.iter().map(|q| q.z).fold(f64::NEG_INFINITY, f64::max);
+    // Bounded bucket count: a far outlier cannot allocate without limit.
+    let bucket_m = bucket_m.max((z_max - z_min) / 1e6).max(1e-9);
+    let buckets = ((z_max - z_min) / bucket_m) as usize + 1;
+    let key = |q: &ChartPoint| (((q.z - z_min) / bucket_m) as usize).min(buckets - 1);
+    let mut start = vec![0usize; buckets + 1];
+    for q in &chart {
+        start[key(q) + 1] += 1;
+    }
+    for b in 0..buckets {
+        start[b + 1] += start[b];
+    }
+    let mut next = start.clone();
+    let mut sorted = vec![
+        ChartPoint {
+            z: 0.0,
+            p: 0.0,
+            s: 0.0
+        };
+        chart.len()
+    ];
+    for q in chart {
+        let k = key(&q);
+        sorted[next[k]] = q;
+        next[k] += 1;
+    }
+    (sorted, start, z_min, bucket_m)
 }
 
 /// Transverse `(e1, e2)` coordinates and axial `z` of every point relative to `centroid`.

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from typing import Any
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -155,19 +153,3 @@ def submap_builder(config: Config | str = "tunnel") -> SubmapBuilder:
     returns a ``Submap`` whenever a window of ``submap.scans_per_submap`` scans completes
     (one window every ``submap.interval_s``); ``finish()`` emits the partial last window."""
     return SubmapBuilder(config_json(config))
-
-
-def describe(result: ExtractionResult) -> dict[str, Any]:
-    """A JSON-friendly summary of one extraction result (for reports and the demo)."""
-    d = result.diagnostics
-    return {
-        "points": d.point_count,
-        "elongation": d.elongation,
-        "contour": d.contour_model,
-        "radius_m": d.contour_radius_m,
-        "inlier_fraction": d.contour_inlier_fraction,
-        "landmarks": [
-            {"origin": lm.origin.tolist(), "strength": lm.strength} for lm in result.landmarks
-        ],
-        "rejections": [str(r) for r in result.rejections],
-    }

@@ -400,7 +400,7 @@ impl PySubmapBuilder {
                 .transpose()?,
         };
         let builder = &mut self.inner;
-        let out = py.detach(|| builder.push(scan)).map_err(to_py_err)?;
+        let out = detached(py, move || builder.push(scan))?;
         Ok(out.map(|m| PySubmap { inner: Arc::new(m) }))
     }
 
