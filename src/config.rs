@@ -359,6 +359,35 @@ impl DecodConfig {
                 ));
             }
         }
+        // Extraction sections (issue 2).
+        for (name, ok) in [
+            ("contour.max_fit_points", self.contour.max_fit_points >= 3),
+            ("contour.polar_bins", self.contour.polar_bins >= 8),
+            (
+                "contour.polar_smoothing_bins",
+                self.contour.polar_smoothing_bins >= 0.0,
+            ),
+            (
+                "contour.auto_polar_ratio",
+                self.contour.auto_polar_ratio > 0.0,
+            ),
+            (
+                "boundary.profile_sectors",
+                self.boundary.profile_sectors >= 1,
+            ),
+            ("boundary.min_snr", self.boundary.min_snr >= 0.0),
+            (
+                "boundary.min_strength_m",
+                self.boundary.min_strength_m >= 0.0,
+            ),
+        ] {
+            if !ok {
+                return Err(DecodError::config(
+                    name,
+                    "out of range (see `decod dump-config` for the defaults)",
+                ));
+            }
+        }
         if self.submap.scans_per_submap == 0 {
             return Err(DecodError::config(
                 "submap.scans_per_submap",

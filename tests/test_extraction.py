@@ -255,6 +255,27 @@ def test_submap_builder_streams_on_schedule():
     assert [m.anchor_stamp for m in submaps] == pytest.approx([1.0, 9.0])
     assert all(len(m.scan_stamps) == 20 for m in submaps)
     assert last is None  # the third window would start at 16 s, after the log's end (10.4 s)
+    with pytest.raises(ValueError, match="earlier than the previous scan"):
+        builder.push(0.0, log.points[0], log.poses[0])
+    bad = log.points[0].copy()
+    bad[5, 2] = np.inf
+    with pytest.raises(ValueError, match=r"points\[5\]"):
+        builder.push(20.0, bad, log.poses[0])
+    # IMU: the specific force of a pitched body gives a pitched gravity in the anchor frame.
+    tilted = decod_rs.submap_builder("pipe")
+    force = np.array([-9.81 * np.sin(0.1), 0.0, 9.81 * np.cos(0.1)])
+    emitted = [tilted.push(t, p, pose, force) for t, p, pose in zip(*_window(log), strict=True)]
+    m = emitted[-1]
+    assert m is not None
+    # Expected: -normalize(sum_k R_anchor^T R_k f) over the 20 scans (anchor = scan 10).
+    anchor_rot = log.poses[10][:3, :3]
+    total = sum(anchor_rot.T @ log.poses[k][:3, :3] @ force for k in range(20))
+    assert np.allclose(m.gravity, -total / np.linalg.norm(total), atol=1e-6)
+    assert m.gravity @ np.array([np.sin(0.1), 0.0, -np.cos(0.1)]) > 0.998  # wobble < 0.05 rad
+
+
+def _window(log):
+    return log.stamps[:20], log.points[:20], log.poses[:20]
 
 
 @settings(max_examples=5, deadline=None)
