@@ -316,7 +316,9 @@ pub fn fit_polar(
     // Resample the bin centres onto the lookup table.
     let table: Vec<f64> = (0..TABLE_SIZE)
         .map(|k| {
-            let f = (k as f64 + 0.5) / TABLE_SIZE as f64 * bins as f64 - 0.5;
+            // Table entry k sits at theta_k = k TAU / TABLE_SIZE; bin b is centred at
+            // (b + 0.5) TAU / bins. Mirror-symmetric, so a heading reversal maps p to 1 - p.
+            let f = k as f64 / TABLE_SIZE as f64 * bins as f64 - 0.5;
             let b0 = f.floor().rem_euclid(bins as f64) as usize;
             let w = f - f.floor();
             smooth[b0] * (1.0 - w) + smooth[(b0 + 1) % bins] * w

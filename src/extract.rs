@@ -583,6 +583,29 @@ mod tests {
         assert_eq!(out.rejections[0].reason, RejectionReason::GravityAlongAxis);
     }
 
+    #[test]
+    fn parallel_equals_serial() {
+        let submaps: Vec<Submap> = (0..4)
+            .map(|k| {
+                let rot = Rotation3::from_euler_angles(0.1 * k as f64, 0.05, 0.2);
+                Submap::from_points(
+                    k as f64,
+                    pipe(30_000, rot, Vector3::zeros()),
+                    [0.0, 0.0, -1.0],
+                    [1.0, 0.0, 0.0],
+                )
+                .unwrap_or_else(|e| unreachable!("{e}"))
+            })
+            .collect();
+        let cfg = DecodConfig::pipe();
+        let parallel = extract_all(&submaps, &cfg);
+        for (m, p) in submaps.iter().zip(&parallel) {
+            let serial = extract_landmarks(m, &cfg);
+            assert_eq!(serial.landmarks, p.landmarks);
+            assert_eq!(serial.rejections, p.rejections);
+        }
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
         /// Moving the cloud, gravity and forward rigidly moves the landmark with them and
