@@ -334,8 +334,8 @@ pub fn fit_polar(
 /// Fits the configured model (`circle`, `polar`, or `auto`: polar only if its median
 /// absolute offset is below `auto_polar_ratio` times the circle's) and validates it.
 pub fn fit_contour(uv: &[[f64; 2]], cfg: &ContourConfig) -> Result<ContourFit> {
-    // Fit on an evenly strided subset: 20k points pin a circle to < 0.1 mm; the validation
-    // below still uses every point.
+    // Fit on an evenly strided subset of at most `max_fit_points`; the inlier fraction and
+    // median offset below are over every point of `uv`.
     let stride = uv.len().div_ceil(cfg.max_fit_points.max(3)).max(1);
     let subset: Vec<[f64; 2]> = uv.iter().step_by(stride).copied().collect();
     let (centre, r) = fit_circle(&subset)?;
@@ -472,6 +472,34 @@ mod tests {
         assert!(s.normal[0] > 0.99, "{s:?}");
         let circle = fit_contour(&ring(5000, [0.0, 0.0], 3.0), &cfg).unwrap();
         assert_eq!(circle.contour.model, ContourModel::Circle);
+    }
+
+    /// Median |offset| of the polar fit over that of the circle: the figure behind
+    /// `contour.auto_polar_ratio = 0.5`.
+    fn polar_over_circle(uv: &[[f64; 2]]) -> f64 {
+        let (c, r) = fit_circle(uv).unwrap();
+        let circle = ReferenceContour::circle(c, r);
+        let polar = fit_polar(uv, c, 180, 1.5).unwrap();
+        let med = |k: &ReferenceContour| {
+            median_abs(&mut uv.iter().map(|&x| k.unroll(x).s).collect::<Vec<_>>())
+        };
+        med(&polar) / med(&circle)
+    }
+
+    #[test]
+    fn polar_to_circle_residual_ratio_separates_the_models() {
+        let noisy_ring: Vec<[f64; 2]> = ring(20_000, [0.2, 0.1], 3.0)
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let n = 0.01 * (((i * 104_729) % 101) as f64 / 50.0 - 1.0);
+                [p[0] * (1.0 + n / 3.0), p[1] * (1.0 + n / 3.0)]
+            })
+            .collect();
+        let ring_ratio = polar_over_circle(&noisy_ring);
+        let horseshoe_ratio = polar_over_circle(&horseshoe(20_000));
+        assert!(ring_ratio > 0.8, "{ring_ratio}");
+        assert!(horseshoe_ratio < 0.1, "{horseshoe_ratio}");
     }
 
     #[test]
