@@ -1,1 +1,363 @@
-//! (extraction, issue 2: filled by the extraction work)
+//! Submaps (paper §III-A, §IV-A.2): consecutive scans accumulated with odometry into the body
+//! frame of one anchor scan, then voxel-filtered. A submap is the unit of extraction; its
+//! anchor stamp names the frame every landmark it yields is expressed in.
+
+use std::collections::HashMap;
+
+use nalgebra::{Point3, Vector3};
+
+use crate::config::SubmapConfig;
+use crate::error::{DecodError, Result};
+use crate::geometry::Pose;
+use crate::scan::Scan;
+
+/// Scans accumulated into the anchor scan's body frame.
+#[derive(Clone, Debug)]
+pub struct Submap {
+    /// Stamp of the anchor scan, seconds: the submap's identity and frame.
+    pub anchor_stamp: f64,
+    /// Stamps of every scan accumulated, in time order (eligibility: no shared scans).
+    pub scan_stamps: Vec<f64>,
+    /// Odometry pose of the anchor scan (`T_world_anchor`).
+    pub world_from_anchor: Pose,
+    /// Voxel-filtered points in the anchor body frame, metres (one centroid per voxel).
+    pub points_in_anchor: Vec<[f32; 3]>,
+    /// Unit gravity direction (pointing down) in the anchor frame: the negated mean IMU
+    /// specific force of the scans that have one, rotated into the anchor frame; the anchor's
+    /// `-z` when no scan has an IMU reading.
+    pub gravity_in_anchor: [f64; 3],
+    /// Unit forward direction in the anchor frame: the sensor's `+x` axis of the anchor scan,
+    /// i.e. always `[1, 0, 0]`. The sensor's heading, not the direction of motion, is used so
+    /// that a crawler reversing out of a pipe (heading unchanged, motion backwards) keeps its
+    /// axis orientation, while a vehicle that turns round flips it (paper §III-B headings).
+    pub forward_in_anchor: [f64; 3],
+}
+
+impl Submap {
+    /// Accumulates `scans` (time-ordered) into the frame of `scans[anchor_index]`.
+    ///
+    /// Motion compensation (paper §IV-A.2): each point of scan `k` goes to the anchor frame
+    /// with `T_anchor_body_k = T_world_anchor^-1 T_world_body_k` from odometry. Points closer
+    /// than `min_range_m` to their own sensor or farther than `max_range_m` from the anchor
+    /// are dropped; the rest are voxel-filtered (one centroid per `voxel_m` cube).
+    ///
+    /// Errors name the scan and point: no scans, an anchor out of range, non-finite stamps or
+    /// points, stamps out of order.
+    pub fn from_scans(scans: &[Scan], anchor_index: usize, cfg: &SubmapConfig) -> Result<Self> {
+        if scans.is_empty() {
+            return Err(DecodError::invalid("scans", "no scans to accumulate"));
+        }
+        let anchor = scans.get(anchor_index).ok_or_else(|| {
+            DecodError::invalid(
+                "anchor_index",
+                format!("{anchor_index} is out of range for {} scans", scans.len()),
+            )
+        })?;
+        validate_scans(scans)?;
+        let anchor_from_world = anchor.world_from_body.inverse();
+        let voxel = cfg.voxel_m;
+        let (min_r2, max_r2) = (cfg.min_range_m.powi(2), cfg.max_range_m.powi(2));
+        // Voxel key -> (sum of points, count); one pass, centroids at the end.
+        let mut voxels: HashMap<[i64; 3], ([f64; 3], u32)> = HashMap::new();
+        let mut force_sum = Vector3::zeros();
+        let mut force_count = 0usize;
+        for scan in scans {
+            let anchor_from_body = anchor_from_world * scan.world_from_body;
+            if let Some(f) = scan.specific_force_in_body {
+                force_sum += anchor_from_body.rotation * Vector3::from(f);
+                force_count += 1;
+            }
+            for p in &scan.points_in_body {
+                let body = Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                if body.coords.norm_squared() < min_r2 {
+                    continue;
+                }
+                let q = anchor_from_body * body;
+                if q.coords.norm_squared() > max_r2 {
+                    continue;
+                }
+                let key = [
+                    (q.x / voxel).floor() as i64,
+                    (q.y / voxel).floor() as i64,
+                    (q.z / voxel).floor() as i64,
+                ];
+                let entry = voxels.entry(key).or_insert(([0.0; 3], 0));
+                entry.0[0] += q.x;
+                entry.0[1] += q.y;
+                entry.0[2] += q.z;
+                entry.1 += 1;
+            }
+        }
+        let mut keyed: Vec<([i64; 3], [f32; 3])> = voxels
+            .into_iter()
+            .map(|(k, (s, n))| {
+                let n = n as f64;
+                (k, [(s[0] / n) as f32, (s[1] / n) as f32, (s[2] / n) as f32])
+            })
+            .collect();
+        // Deterministic order (HashMap iteration is not): same input, same submap.
+        keyed.sort_unstable_by_key(|(k, _)| *k);
+        let gravity = if force_count > 0 && force_sum.norm() > 1e-9 {
+            let g = -force_sum.normalize();
+            [g.x, g.y, g.z]
+        } else {
+            [0.0, 0.0, -1.0]
+        };
+        Ok(Self {
+            anchor_stamp: anchor.stamp,
+            scan_stamps: scans.iter().map(|s| s.stamp).collect(),
+            world_from_anchor: anchor.world_from_body,
+            points_in_anchor: keyed.into_iter().map(|(_, p)| p).collect(),
+            gravity_in_anchor: gravity,
+            forward_in_anchor: [1.0, 0.0, 0.0],
+        })
+    }
+
+    /// A submap made directly from points already in one frame (no odometry): for clouds
+    /// that were accumulated elsewhere. `gravity` and `forward` need not be unit; they are
+    /// normalised and must be finite and non-zero.
+    pub fn from_points(
+        stamp: f64,
+        points: Vec<[f32; 3]>,
+        gravity: [f64; 3],
+        forward: [f64; 3],
+    ) -> Result<Self> {
+        if !stamp.is_finite() {
+            return Err(DecodError::invalid("stamp", "must be finite"));
+        }
+        if let Some(i) = points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
+            return Err(DecodError::invalid(
+                "points",
+                format!("row {i} is not finite: {:?}", points[i]),
+            ));
+        }
+        Ok(Self {
+            anchor_stamp: stamp,
+            scan_stamps: vec![stamp],
+            world_from_anchor: Pose::identity(),
+            points_in_anchor: points,
+            gravity_in_anchor: unit(gravity, "gravity")?,
+            forward_in_anchor: unit(forward, "forward")?,
+        })
+    }
+}
+
+/// `v / |v|`, or an error naming `what` when `v` is zero or not finite.
+pub(crate) fn unit(v: [f64; 3], what: &str) -> Result<[f64; 3]> {
+    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if !(n.is_finite() && n > 1e-12) {
+        return Err(DecodError::invalid(
+            what,
+            format!("must be a finite non-zero vector, got {v:?}"),
+        ));
+    }
+    Ok([v[0] / n, v[1] / n, v[2] / n])
+}
+
+fn validate_scans(scans: &[Scan]) -> Result<()> {
+    let mut previous = f64::NEG_INFINITY;
+    for (k, scan) in scans.iter().enumerate() {
+        if !scan.stamp.is_finite() {
+            return Err(DecodError::invalid(
+                format!("scans[{k}].stamp"),
+                "not finite",
+            ));
+        }
+        if scan.stamp < previous {
+            return Err(DecodError::invalid(
+                format!("scans[{k}].stamp"),
+                format!(
+                    "{} is earlier than the previous scan ({previous})",
+                    scan.stamp
+                ),
+            ));
+        }
+        previous = scan.stamp;
+        if let Some(i) = scan
+            .points_in_body
+            .iter()
+            .position(|p| p.iter().any(|v| !v.is_finite()))
+        {
+            return Err(DecodError::invalid(
+                format!("scans[{k}].points[{i}]"),
+                "not finite (NaN or inf)",
+            ));
+        }
+        if let Some(f) = scan.specific_force_in_body
+            && f.iter().any(|v| !v.is_finite())
+        {
+            return Err(DecodError::invalid(
+                format!("scans[{k}].specific_force"),
+                "not finite",
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Streams scans into submaps on the paper's schedule: a window of `scans_per_submap`
+/// consecutive scans starts every `interval_s` (20 scans every 8 s by default).
+///
+/// The anchor is the middle scan of the window (index `len / 2`): odometry error of the
+/// motion compensation grows with the time from the anchor, so the middle halves the worst
+/// case, and the submap extends both ways from the anchor. Memory is bounded by one window.
+/// When a window takes longer than `interval_s` to fill, the next one starts at the first
+/// scan after it (windows never overlap, so no scan is shared by two submaps).
+#[derive(Debug)]
+pub struct SubmapBuilder {
+    cfg: SubmapConfig,
+    window: Vec<Scan>,
+    next_start_s: Option<f64>,
+    last_stamp: f64,
+}
+
+impl SubmapBuilder {
+    /// A builder with the submap section of the config.
+    pub fn new(cfg: &SubmapConfig) -> Self {
+        Self {
+            cfg: cfg.clone(),
+            window: Vec::with_capacity(cfg.scans_per_submap),
+            next_start_s: None,
+            last_stamp: f64::NEG_INFINITY,
+        }
+    }
+
+    /// Adds the next scan (time order); returns a submap when this scan completes a window.
+    pub fn push(&mut self, scan: Scan) -> Result<Option<Submap>> {
+        if !scan.stamp.is_finite() || scan.stamp < self.last_stamp {
+            return Err(DecodError::invalid(
+                "scan.stamp",
+                format!(
+                    "{} is not finite or earlier than the previous scan ({})",
+                    scan.stamp, self.last_stamp
+                ),
+            ));
+        }
+        validate_scans(std::slice::from_ref(&scan))?;
+        self.last_stamp = scan.stamp;
+        if self.window.is_empty() {
+            match self.next_start_s {
+                Some(start) if scan.stamp < start => return Ok(None),
+                _ => self.next_start_s = Some(scan.stamp + self.cfg.interval_s),
+            }
+        }
+        self.window.push(scan);
+        if self.window.len() >= self.cfg.scans_per_submap {
+            return self.emit().map(Some);
+        }
+        Ok(None)
+    }
+
+    /// Emits the partial window left at the end of the stream, if any (a short submap is
+    /// still extracted; its size is in its `scan_stamps`).
+    pub fn finish(&mut self) -> Result<Option<Submap>> {
+        if self.window.is_empty() {
+            return Ok(None);
+        }
+        self.emit().map(Some)
+    }
+
+    fn emit(&mut self) -> Result<Submap> {
+        let scans = std::mem::take(&mut self.window);
+        let submap = Submap::from_scans(&scans, scans.len() / 2, &self.cfg);
+        self.window = Vec::with_capacity(self.cfg.scans_per_submap);
+        submap
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::DecodConfig;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn scan(stamp: f64, x: f64, yaw: f64, points: Vec<[f32; 3]>) -> Scan {
+        Scan {
+            stamp,
+            points_in_body: points,
+            world_from_body: Pose::from_parts(
+                Translation3::new(x, 0.0, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+            ),
+            specific_force_in_body: Some([0.0, 0.0, 9.81]),
+        }
+    }
+
+    #[test]
+    fn points_are_motion_compensated_into_the_anchor_frame() {
+        let mut cfg = DecodConfig::tunnel().submap;
+        cfg.voxel_m = 0.01;
+        // A world point at (5, 1, 0) seen from x = 0, 1, 2: all land on one voxel in anchor
+        // frame (x = 1), at (4, 1, 0).
+        let scans: Vec<Scan> = (0..3)
+            .map(|k| scan(k as f64, k as f64, 0.0, vec![[5.0 - k as f32, 1.0, 0.0]]))
+            .collect();
+        let m = Submap::from_scans(&scans, 1, &cfg).unwrap();
+        assert_eq!(m.points_in_anchor.len(), 1);
+        let p = m.points_in_anchor[0];
+        assert!(
+            (p[0] - 4.0).abs() < 1e-5 && (p[1] - 1.0).abs() < 1e-5,
+            "{p:?}"
+        );
+        assert_eq!(m.anchor_stamp, 1.0);
+        assert!((m.gravity_in_anchor[2] + 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rotated_anchor_rotates_gravity_and_points() {
+        let cfg = DecodConfig::tunnel().submap;
+        let s = scan(0.0, 0.0, 0.3, vec![[2.0, 0.0, 0.0]]);
+        let mut s2 = s.clone();
+        s2.stamp = 0.1;
+        s2.world_from_body = Pose::from_parts(
+            Translation3::new(0.0, 0.0, 0.0),
+            UnitQuaternion::from_euler_angles(0.2, 0.0, 0.3),
+        );
+        let m = Submap::from_scans(&[s, s2], 0, &cfg).unwrap();
+        // Mean of gravity in both bodies, expressed in body 0: unit and still mostly down.
+        let g = m.gravity_in_anchor;
+        assert!(((g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() - 1.0).abs() < 1e-9);
+        assert!(g[2] < -0.9 && g[1].abs() > 0.05, "{g:?}");
+    }
+
+    #[test]
+    fn bad_scans_are_named_errors() {
+        let cfg = DecodConfig::tunnel().submap;
+        let bad = scan(0.0, 0.0, 0.0, vec![[f32::NAN, 0.0, 0.0]]);
+        let err = Submap::from_scans(&[bad], 0, &cfg).unwrap_err().to_string();
+        assert!(err.contains("scans[0].points[0]"), "{err}");
+        let a = scan(1.0, 0.0, 0.0, vec![]);
+        let b = scan(0.5, 0.0, 0.0, vec![]);
+        assert!(Submap::from_scans(&[a.clone(), b], 0, &cfg).is_err());
+        assert!(Submap::from_scans(&[a], 3, &cfg).is_err());
+        assert!(Submap::from_scans(&[], 0, &cfg).is_err());
+    }
+
+    #[test]
+    fn builder_emits_on_schedule_with_middle_anchor() {
+        let mut cfg = DecodConfig::tunnel().submap;
+        cfg.scans_per_submap = 4;
+        cfg.interval_s = 1.0;
+        let mut b = SubmapBuilder::new(&cfg);
+        let mut out = Vec::new();
+        // Scans at 10 Hz over 3.05 s.
+        for k in 0..31 {
+            let t = k as f64 * 0.1;
+            if let Some(m) = b.push(scan(t, t, 0.0, vec![[3.0, 0.0, 0.0]])).unwrap() {
+                out.push(m);
+            }
+        }
+        if let Some(m) = b.finish().unwrap() {
+            out.push(m);
+        }
+        let anchors: Vec<f64> = out.iter().map(|m| m.anchor_stamp).collect();
+        assert_eq!(out.len(), 4, "{anchors:?}");
+        for (i, m) in out.iter().take(3).enumerate() {
+            assert_eq!(m.scan_stamps.len(), 4);
+            assert!((m.scan_stamps[0] - i as f64).abs() < 1e-9);
+            assert!((m.anchor_stamp - (i as f64 + 0.2)).abs() < 1e-9);
+        }
+        assert_eq!(out[3].scan_stamps.len(), 1);
+        assert!(b.push(scan(0.0, 0.0, 0.0, vec![])).is_err());
+    }
+}

@@ -12,15 +12,16 @@ import re
 import struct
 from pathlib import Path
 
-import decod_rs
 import numpy as np
 import pytest
-from decod_rs.cli import main as cli_main
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+import decod_rs
+from decod_rs.cli import main as cli_main
 
 RNG = np.random.default_rng(4)
 NS = 1_000_000_000

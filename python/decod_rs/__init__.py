@@ -101,3 +101,32 @@ __all__ += [
     "inspect_log",
     "read_log",
 ]
+
+# --- extraction (issue 2) -----------------------------------------------------------------
+from decod_rs.extraction import (
+    ExtractionResult,
+    Rejection,
+    Submap,
+    SubmapBuilder,
+    SubmapDiagnostics,
+    build_submap,
+    extract_landmarks,
+    extract_submap,
+    extract_submaps,
+    submap_builder,
+    submap_from_points,
+)
+
+__all__ += [
+    "ExtractionResult",
+    "Rejection",
+    "Submap",
+    "SubmapBuilder",
+    "SubmapDiagnostics",
+    "build_submap",
+    "extract_landmarks",
+    "extract_submap",
+    "extract_submaps",
+    "submap_builder",
+    "submap_from_points",
+]

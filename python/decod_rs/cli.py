@@ -15,6 +15,7 @@ COMMANDS = [
     "evaluate",
     "inspect",
     "convert",
+    "demo",
 ]
 
 
