@@ -18,6 +18,7 @@ pub mod geometry;
 pub mod io;
 pub mod landmark;
 pub mod matching;
+pub mod pipeline;
 pub mod scan;
 pub mod submap;
 

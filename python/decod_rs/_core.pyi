@@ -1,5 +1,6 @@
 """Type stubs of the private native module (checked by ``mypy.stubtest`` in ``make lint``)."""
 
+import os
 from typing import final
 
 import numpy as np
@@ -202,3 +203,42 @@ def check_log(path: str) -> list[tuple[str, str, bool, int, int, int, str | None
 def read_tum(path: str) -> npt.NDArray[np.float64]: ...
 
 # --- matching (issue 5) -------------------------------------------------------------------
+
+# --- pipeline (issue 6) ---------------------------------------------------------------------
+@final
+class ProcessedSubmap:
+    @property
+    def anchor_stamp(self) -> float: ...
+    @property
+    def point_count(self) -> int: ...
+    @property
+    def world_from_anchor(self) -> NDArray[np.float64]: ...
+    @property
+    def scan_stamps(self) -> NDArray[np.float64]: ...
+    @property
+    def result(self) -> ExtractionResult: ...
+
+@final
+class LogProcessor:
+    def __new__(
+        cls,
+        path: str | os.PathLike[str],
+        config_json: str,
+        *,
+        points_topic: str | None = None,
+        odom_topic: str | None = None,
+        odom_tum: str | os.PathLike[str] | None = None,
+        imu_topic: str | None = None,
+        batch: int = 2,
+    ) -> LogProcessor: ...
+    def step(self) -> list[ProcessedSubmap] | None: ...
+    @property
+    def scans_read(self) -> int: ...
+    @property
+    def total_scans_hint(self) -> int: ...
+    @property
+    def points_topic(self) -> str: ...
+    @property
+    def skipped_outside_odometry(self) -> list[float]: ...
+    def scan_stamps(self) -> NDArray[np.float64]: ...
+    def scan_poses(self) -> NDArray[np.float64]: ...

@@ -22,7 +22,7 @@ use super::errors::{ConfigError, to_py_err};
 use super::landmark::PyLandmark;
 
 /// Parses and validates a config given as JSON (what `decod_rs.Config.to_dict()` dumps).
-fn config_from_json(json: &str) -> PyResult<DecodConfig> {
+pub(crate) fn config_from_json(json: &str) -> PyResult<DecodConfig> {
     let cfg: DecodConfig = serde_json::from_str(json)
         .map_err(|e| ConfigError::new_err(format!("invalid config JSON: {e}")))?;
     cfg.validate().map_err(to_py_err)?;
@@ -209,7 +209,7 @@ impl From<&SubmapDiagnostics> for PyDiagnostics {
 /// Landmarks, rejections and diagnostics of one submap.
 #[pyclass(name = "ExtractionResult", module = "decod_rs._core", frozen)]
 pub(crate) struct PyExtractionResult {
-    inner: ExtractionOutcome,
+    pub(crate) inner: ExtractionOutcome,
 }
 
 #[pymethods]

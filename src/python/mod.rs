@@ -11,6 +11,7 @@ mod extraction;
 mod io;
 mod landmark;
 mod matching;
+mod pipeline;
 
 /// Runs `work` with the GIL released and maps a core error to its Python exception.
 /// A Rust panic would already be a bug; catching it here keeps it from killing the
@@ -43,5 +44,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     extraction::register(m)?;
     io::register(m)?;
     matching::register(m)?;
+    pipeline::register(m)?;
     Ok(())
 }

@@ -1,0 +1,138 @@
+//! Log -> landmarks: the streaming front half of `decod run` (paper Algorithm 1, lines 2–3).
+//! Scans stream from the log ([`crate::io::ScanStream`]), accumulate into submaps
+//! ([`crate::submap::SubmapBuilder`]) and are extracted a few submaps at a time in parallel
+//! ([`crate::extract::extract_all`]). Memory is bounded by `batch` submaps, not by the log;
+//! only the scan poses (one per scan) and the landmarks are kept.
+
+use std::path::Path;
+
+use crate::config::DecodConfig;
+use crate::error::Result;
+use crate::extract::{ExtractionOutcome, extract_all};
+use crate::geometry::Pose;
+use crate::io::{ScanStream, ScanStreamOptions};
+use crate::submap::{Submap, SubmapBuilder};
+
+/// What the pose graph needs of a submap once its points are gone.
+#[derive(Clone, Debug)]
+pub struct SubmapRecord {
+    /// Stamp of the anchor scan, seconds.
+    pub anchor_stamp: f64,
+    /// Odometry pose of the anchor (`T_world_anchor`).
+    pub world_from_anchor: Pose,
+    /// Stamps of the scans accumulated.
+    pub scan_stamps: Vec<f64>,
+    /// Points after voxel filtering.
+    pub point_count: usize,
+}
+
+/// One extracted submap: its record and what extraction found.
+pub type ProcessedSubmap = (SubmapRecord, ExtractionOutcome);
+
+/// Streams a log through submaps and extraction, `batch` submaps per step.
+pub struct LogProcessor {
+    stream: ScanStream,
+    builder: SubmapBuilder,
+    config: DecodConfig,
+    batch: usize,
+    pending: Vec<Submap>,
+    scan_stamps: Vec<f64>,
+    scan_poses: Vec<Pose>,
+    stream_done: bool,
+}
+
+impl LogProcessor {
+    /// Opens the log and reads its odometry (see [`ScanStream::open`] for the errors).
+    /// `batch` submaps are extracted in parallel per step; 2–4 keeps both cores busy while
+    /// bounding memory.
+    pub fn open(
+        path: &Path,
+        options: &ScanStreamOptions,
+        config: &DecodConfig,
+        batch: usize,
+    ) -> Result<Self> {
+        config.validate()?;
+        Ok(Self {
+            stream: ScanStream::open(path, options)?,
+            builder: SubmapBuilder::new(&config.submap),
+            config: config.clone(),
+            batch: batch.max(1),
+            pending: Vec::new(),
+            scan_stamps: Vec::new(),
+            scan_poses: Vec::new(),
+            stream_done: false,
+        })
+    }
+
+    /// Reads scans until `batch` submaps are complete (or the log ends), extracts them in
+    /// parallel and returns them in time order; `None` once everything is processed. An error
+    /// mid-log (corrupt chunk) is returned after the submaps completed before it were
+    /// returned by earlier steps; the scan poses read so far stay available.
+    pub fn step(&mut self) -> Result<Option<Vec<ProcessedSubmap>>> {
+        while !self.stream_done && self.pending.len() < self.batch {
+            match self.stream.next() {
+                Some(scan) => {
+                    let scan = scan?;
+                    self.scan_stamps.push(scan.stamp);
+                    self.scan_poses.push(scan.world_from_body);
+                    if let Some(submap) = self.builder.push(scan)? {
+                        self.pending.push(submap);
+                    }
+                }
+                None => {
+                    self.stream_done = true;
+                    if let Some(submap) = self.builder.finish()? {
+                        self.pending.push(submap);
+                    }
+                }
+            }
+        }
+        if self.pending.is_empty() {
+            return Ok(None);
+        }
+        let submaps = std::mem::take(&mut self.pending);
+        let outcomes = extract_all(&submaps, &self.config);
+        Ok(Some(
+            submaps
+                .into_iter()
+                .zip(outcomes)
+                .map(|(s, o)| {
+                    (
+                        SubmapRecord {
+                            anchor_stamp: s.anchor_stamp,
+                            world_from_anchor: s.world_from_anchor,
+                            point_count: s.points_in_anchor.len(),
+                            scan_stamps: s.scan_stamps,
+                        },
+                        o,
+                    )
+                })
+                .collect(),
+        ))
+    }
+
+    /// Stamps of every scan read so far (odometry-paired), seconds.
+    pub fn scan_stamps(&self) -> &[f64] {
+        &self.scan_stamps
+    }
+
+    /// Odometry pose of every scan read so far, aligned with [`Self::scan_stamps`].
+    pub fn scan_poses(&self) -> &[Pose] {
+        &self.scan_poses
+    }
+
+    /// Scans skipped because they lie outside the odometry span.
+    pub fn skipped_outside_odometry(&self) -> &[f64] {
+        self.stream.skipped_outside_odometry()
+    }
+
+    /// Point-cloud messages in the log (for progress).
+    pub fn total_scans_hint(&self) -> u64 {
+        self.stream.total_scans_hint()
+    }
+
+    /// The point-cloud topic being read.
+    pub fn points_topic(&self) -> &str {
+        self.stream.points_topic()
+    }
+}
