@@ -127,6 +127,24 @@ pub struct MatchingConfig {
     pub sign_only: bool,
     /// Geometric verification on (paper) or off (ablation: best patch similarity wins).
     pub verification: bool,
+    /// Cap on keypoints per descriptor (strongest texture-energy maxima). 48 keeps a pair
+    /// (both headings) near 0.1 ms on one core while true pairs reach K ~ 20-30.
+    pub max_keypoints: usize,
+    /// Keypoint non-maximum suppression half-window along z, in rows.
+    pub keypoint_nms_rows: usize,
+    /// Keypoint non-maximum suppression half-window along p, in columns.
+    pub keypoint_nms_cols: usize,
+    /// Minimum Gaussian-weighted fraction of a patch observed: in its own descriptor for a
+    /// keypoint, and in both descriptors for a patch distance to be finite.
+    pub min_patch_overlap_fraction: f64,
+    /// Verification inlier tolerance along z, in rows (consensus box half-width).
+    pub verify_tolerance_z_cells: usize,
+    /// Verification inlier tolerance along p, in columns.
+    pub verify_tolerance_p_cells: usize,
+    /// Largest plausible axial offset between two views of a boundary, in rows.
+    pub max_shift_z_cells: usize,
+    /// Largest plausible circumferential offset (gravity reference error), in columns.
+    pub max_shift_p_cells: usize,
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
@@ -220,6 +238,14 @@ impl DecodConfig {
                 normalisation: "five_variable".into(),
                 sign_only: false,
                 verification: true,
+                max_keypoints: 48,
+                keypoint_nms_rows: 1,
+                keypoint_nms_cols: 4,
+                min_patch_overlap_fraction: 0.5,
+                verify_tolerance_z_cells: 1,
+                verify_tolerance_p_cells: 2,
+                max_shift_z_cells: 3,
+                max_shift_p_cells: 16,
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -250,6 +276,11 @@ impl DecodConfig {
         c.boundary.min_strength_m = 0.0002;
         c.descriptor.half_length_m = 0.24;
         c.graph.landmark_position_sigma_m = 0.01;
+        // Matching works in grid cells; the grid is kept at 16 x 256, so its tunnel values
+        // carry over unchanged (listed here so the pipe preset states them).
+        c.matching.max_keypoints = 48;
+        c.matching.max_shift_z_cells = 3;
+        c.matching.max_shift_p_cells = 16;
         c
     }
 
@@ -314,6 +345,10 @@ impl DecodConfig {
             ("matching.sigma_z_cells", self.matching.sigma_z_cells),
             ("matching.sigma_p_cells", self.matching.sigma_p_cells),
             ("matching.uniqueness_ratio", self.matching.uniqueness_ratio),
+            (
+                "matching.min_patch_overlap_fraction",
+                self.matching.min_patch_overlap_fraction,
+            ),
             ("graph.huber_k", self.graph.huber_k),
         ];
         for (name, value) in positive {

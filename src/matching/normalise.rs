@@ -1,0 +1,254 @@
+//! Nuisance normalisation of a descriptor (paper §III-B, Eq. 2).
+//!
+//! Contour estimation errors distort every offset systematically: a centring error
+//! `(d1, d2)` adds `-(d1 n1(p) + d2 n2(p))`, a radius or shape error adds a function of `p`,
+//! an axial profile (the joint groove itself, a radius change along the axis) adds a function
+//! of `z`, and an axis tilt adds `z (beta1 n1(p) + beta2 n2(p))`. The model
+//! `f(z, p) = alpha(p) + gamma(z) + z (beta1 n1(p) + beta2 n2(p))` is fitted by least squares
+//! over the observed cells and subtracted; what remains is the surface texture that tells
+//! boundaries apart.
+//!
+//! Solving: `alpha` has one unknown per observed column and enters each cell with weight 1,
+//! so it is eliminated exactly (column-wise centring, a Schur complement); the remaining 18
+//! unknowns (`gamma` per row, `beta1`, `beta2`) are solved from their normal equations with
+//! faer's Cholesky. Gauge freedom: `alpha(p) + c`, `gamma(z) - c` fit equally well; it is fixed
+//! by `sum gamma = 0`, imposed by adding `u u^T` (`u` = ones on the `gamma` block) to the
+//! normal matrix, which leaves the residual unchanged because `u` spans its null space. Rows
+//! with no observed cell get a tiny ridge so the system stays definite (their `gamma` is 0).
+
+use faer::linalg::solvers::Solve;
+use faer::{Mat, Side};
+
+use crate::config::MatchingConfig;
+use crate::landmark::Descriptor;
+
+/// Which normalisation `MatchingConfig::normalisation` selects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Normalisation {
+    /// Eq. 2, five-variable model (the paper).
+    FiveVariable,
+    /// Ablation: subtract the mean and divide by the RMS over observed cells (scale only).
+    ScaleOnly,
+    /// Raw offsets.
+    None,
+}
+
+impl Normalisation {
+    /// From the config string (validated by `DecodConfig::validate`; unknown means the paper's).
+    pub fn from_config(cfg: &MatchingConfig) -> Self {
+        match cfg.normalisation.as_str() {
+            "scale_only" => Normalisation::ScaleOnly,
+            "none" => Normalisation::None,
+            _ => Normalisation::FiveVariable,
+        }
+    }
+}
+
+/// The normalised field of `descriptor`, row-major `rows x cols`, 0.0 at unobserved cells.
+/// `sign_only` (ablation) keeps only the sign of each normalised offset.
+pub fn normalised_field(d: &Descriptor, mode: Normalisation, sign_only: bool) -> Vec<f64> {
+    let mut field = match mode {
+        Normalisation::FiveVariable => five_variable_residual(d),
+        Normalisation::ScaleOnly => scale_only(d),
+        Normalisation::None => masked(d, |_, v| v),
+    };
+    if sign_only {
+        for (v, &o) in field.iter_mut().zip(&d.observed) {
+            *v = if !o || *v == 0.0 { 0.0 } else { v.signum() };
+        }
+    }
+    field
+}
+
+fn masked(d: &Descriptor, f: impl Fn(usize, f64) -> f64) -> Vec<f64> {
+    d.offsets_m
+        .iter()
+        .zip(&d.observed)
+        .enumerate()
+        .map(|(i, (&v, &o))| if o { f(i, v) } else { 0.0 })
+        .collect()
+}
+
+fn scale_only(d: &Descriptor) -> Vec<f64> {
+    let n = d.observed_count().max(1) as f64;
+    let obs = || d.offsets_m.iter().zip(&d.observed).filter(|(_, o)| **o);
+    let mean = obs().map(|(v, _)| v).sum::<f64>() / n;
+    let rms = (obs().map(|(v, _)| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let scale = if rms > 0.0 { 1.0 / rms } else { 1.0 };
+    masked(d, |_, v| (v - mean) * scale)
+}
+
+/// Axial coordinate of row `r`'s centre relative to the landmark origin, metres.
+#[inline]
+pub fn row_z_m(d: &Descriptor, r: usize) -> f64 {
+    (r as f64 + 0.5 - d.rows as f64 / 2.0) * d.cell_z_m
+}
+
+/// Residual of the least-squares fit of Eq. 2 over observed cells (see the module docs).
+pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
+    let (rows, cols) = (d.rows, d.cols);
+    let k = rows + 2; // gamma per row, beta1, beta2
+    // Regressors of cell (r, c) besides alpha: e_r, z n1(c), z n2(c).
+    let regressors = |r: usize, c: usize, out: &mut [f64]| {
+        out.iter_mut().for_each(|x| *x = 0.0);
+        out[r] = 1.0;
+        let z = row_z_m(d, r);
+        out[rows] = z * d.normal_e1[c];
+        out[rows + 1] = z * d.normal_e2[c];
+    };
+    // Column means of y and of the regressors over observed cells (alpha eliminated).
+    let mut col_n = vec![0usize; cols];
+    let mut col_y = vec![0.0; cols];
+    let mut col_g = vec![0.0; cols * k];
+    let mut g = vec![0.0; k];
+    for r in 0..rows {
+        for c in 0..cols {
+            let i = d.index(r, c);
+            if d.observed[i] {
+                regressors(r, c, &mut g);
+                col_n[c] += 1;
+                col_y[c] += d.offsets_m[i];
+                for (acc, gv) in col_g[c * k..(c + 1) * k].iter_mut().zip(&g) {
+                    *acc += gv;
+                }
+            }
+        }
+    }
+    for c in 0..cols {
+        if col_n[c] > 0 {
+            let inv = 1.0 / col_n[c] as f64;
+            col_y[c] *= inv;
+            col_g[c * k..(c + 1) * k].iter_mut().for_each(|x| *x *= inv);
+        }
+    }
+    // Normal equations of the column-centred problem.
+    let mut m = Mat::<f64>::zeros(k, k);
+    let mut b = Mat::<f64>::zeros(k, 1);
+    let mut row_n = vec![0usize; rows];
+    for r in 0..rows {
+        for c in 0..cols {
+            let i = d.index(r, c);
+            if !d.observed[i] {
+                continue;
+            }
+            row_n[r] += 1;
+            regressors(r, c, &mut g);
+            for (gv, mean) in g.iter_mut().zip(&col_g[c * k..(c + 1) * k]) {
+                *gv -= mean;
+            }
+            let y = d.offsets_m[i] - col_y[c];
+            for a in 0..k {
+                b[(a, 0)] += g[a] * y;
+                for bb in 0..k {
+                    m[(a, bb)] += g[a] * g[bb];
+                }
+            }
+        }
+    }
+    // Gauge: sum gamma = 0 (u u^T on the gamma block); ridge for empty rows and for a
+    // degenerate tilt column (e.g. all rows but one unobserved).
+    let trace: f64 = (0..k).map(|a| m[(a, a)]).sum::<f64>().max(1e-300);
+    let ridge = 1e-10 * trace / k as f64;
+    for a in 0..rows {
+        for bb in 0..rows {
+            m[(a, bb)] += trace / k as f64 / rows as f64;
+        }
+    }
+    for a in 0..k {
+        m[(a, a)] += ridge;
+    }
+    let theta = match m.llt(Side::Lower) {
+        Ok(llt) => llt.solve(&b),
+        Err(_) => m.partial_piv_lu().solve(&b),
+    };
+    let theta: Vec<f64> = (0..k).map(|a| theta[(a, 0)]).collect();
+    let theta: Vec<f64> = theta
+        .iter()
+        .map(|t| if t.is_finite() { *t } else { 0.0 })
+        .collect();
+    let mut out = vec![0.0; rows * cols];
+    for r in 0..rows {
+        for c in 0..cols {
+            let i = d.index(r, c);
+            if d.observed[i] {
+                regressors(r, c, &mut g);
+                let fit_other: f64 = g.iter().zip(&theta).map(|(a, t)| a * t).sum();
+                let mean_other: f64 = col_g[c * k..(c + 1) * k]
+                    .iter()
+                    .zip(&theta)
+                    .map(|(a, t)| a * t)
+                    .sum();
+                // alpha_c = col mean of y - col mean of the other terms.
+                let alpha = col_y[c] - mean_other;
+                out[i] = d.offsets_m[i] - alpha - fit_other;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn descriptor(rows: usize, cols: usize, f: impl Fn(f64, usize) -> f64) -> Descriptor {
+        let tau = std::f64::consts::TAU;
+        let n1: Vec<f64> = (0..cols)
+            .map(|c| (tau * (c as f64 + 0.5) / cols as f64).cos())
+            .collect();
+        let n2: Vec<f64> = (0..cols)
+            .map(|c| (tau * (c as f64 + 0.5) / cols as f64).sin())
+            .collect();
+        let mut d = Descriptor {
+            rows,
+            cols,
+            cell_z_m: 0.3,
+            perimeter_m: 18.0,
+            offsets_m: vec![0.0; rows * cols],
+            observed: vec![true; rows * cols],
+            normal_e1: n1,
+            normal_e2: n2,
+        };
+        for r in 0..rows {
+            for c in 0..cols {
+                let z = row_z_m(&d, r);
+                let i = d.index(r, c);
+                d.offsets_m[i] = f(z, c);
+                // Bottom sector and a hole unobserved.
+                d.observed[i] = !(c < cols / 12 || c > cols - cols / 12 || (r < 3 && c > 100));
+            }
+        }
+        d
+    }
+
+    #[test]
+    fn removes_the_nuisance_model_exactly() {
+        let cols = 256;
+        let tau = std::f64::consts::TAU;
+        let nuisance = |z: f64, c: usize| {
+            let p = (c as f64 + 0.5) / cols as f64;
+            let (n1, n2) = ((tau * p).cos(), (tau * p).sin());
+            0.004 * (3.0 * tau * p).sin() + 0.01 * z * z - 0.02 * n1 + 0.003 * z * n1
+                - 0.002 * z * n2
+                + 0.05
+        };
+        let d = descriptor(16, cols, nuisance);
+        let field = five_variable_residual(&d);
+        let max = field.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        // Exact model: only rounding error remains (offsets of ~1e-2 m, 4096 cells).
+        assert!(max < 1e-9, "residual {max}");
+    }
+
+    #[test]
+    fn keeps_texture_orthogonal_to_the_model() {
+        let cols = 256;
+        // A checkerboard-like interaction term is not representable by Eq. 2.
+        let texture = |z: f64, c: usize| 0.001 * (z * 7.0).sin() * ((c as f64) * 0.3).cos();
+        let d = descriptor(16, cols, texture);
+        let field = five_variable_residual(&d);
+        let energy = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>();
+        let raw: Vec<f64> = masked(&d, |_, v| v);
+        let kept = energy(&field) / energy(&raw);
+        assert!(kept > 0.8, "kept {kept}");
+    }
+}
