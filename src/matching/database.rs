@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use super::patches::PatchShape;
 use super::{
-    check_grids, compare_prepared, Heading, PairResult, PreparedLandmark, QuerySide, Rejection,
+    Heading, PairResult, PreparedLandmark, QuerySide, Rejection, check_grids, compare_prepared,
 };
 use crate::config::MatchingConfig;
 use crate::error::{DecodError, Result};
@@ -189,7 +189,11 @@ impl LandmarkDatabase {
 
     /// Batch mode (paper §IV-A): every query against the whole (outbound) database, queries
     /// in parallel.
-    pub fn query_batch(&self, queries: &[Landmark], cfg: &MatchingConfig) -> Result<Vec<QueryResult>> {
+    pub fn query_batch(
+        &self,
+        queries: &[Landmark],
+        cfg: &MatchingConfig,
+    ) -> Result<Vec<QueryResult>> {
         queries
             .par_iter()
             .map(|q| self.query_with(q, cfg, true, None))
@@ -198,7 +202,11 @@ impl LandmarkDatabase {
 
     /// Online mode: query against every landmark already in the database (all older ones),
     /// then add it. Returns the query result and the new landmark's index.
-    pub fn query_online(&mut self, landmark: Landmark, cfg: &MatchingConfig) -> Result<(QueryResult, usize)> {
+    pub fn query_online(
+        &mut self,
+        landmark: Landmark,
+        cfg: &MatchingConfig,
+    ) -> Result<(QueryResult, usize)> {
         let result = self.query_with(&landmark, cfg, true, None)?;
         let index = self.add(landmark)?;
         Ok((result, index))
@@ -257,7 +265,9 @@ fn decide(
     let mut second: Option<&(usize, PairResult)> = None;
     for item in pairs {
         let beats = |other: Option<&(usize, PairResult)>| {
-            other.is_none_or(|o| rank(&item.1) > rank(&o.1) || (rank(&item.1) == rank(&o.1) && item.0 < o.0))
+            other.is_none_or(|o| {
+                rank(&item.1) > rank(&o.1) || (rank(&item.1) == rank(&o.1) && item.0 < o.0)
+            })
         };
         if beats(best) {
             second = best;
@@ -354,8 +364,8 @@ impl LandmarkDatabase {
                 version.map_or("<missing>".to_string(), |v| v.to_string())
             )));
         }
-        let saved: SavedDatabase = serde_json::from_value(value)
-            .map_err(|e| db_err(format!("corrupt database: {e}")))?;
+        let saved: SavedDatabase =
+            serde_json::from_value(value).map_err(|e| db_err(format!("corrupt database: {e}")))?;
         let config = match (config, saved.config) {
             (Some(c), _) => c.clone(),
             (None, Some(c)) => c,

@@ -87,11 +87,13 @@ pub fn detect(
         .zip(observed)
         .map(|((n, d), &o)| if o && *d > 1e-12 { n / d } else { 0.0 })
         .collect();
-    let (nr, nc) = (cfg.keypoint_nms_rows as isize, cfg.keypoint_nms_cols as isize);
+    let (nr, nc) = (
+        cfg.keypoint_nms_rows as isize,
+        cfg.keypoint_nms_cols as isize,
+    );
     // Strict total order (response, then index) so plateaus yield one maximum.
-    let beats = |a: usize, b: usize| {
-        response[a] > response[b] || (response[a] == response[b] && a < b)
-    };
+    let beats =
+        |a: usize, b: usize| response[a] > response[b] || (response[a] == response[b] && a < b);
     let mut keypoints = Vec::new();
     for r in 0..rows {
         for c in 0..cols {
@@ -128,6 +130,39 @@ pub fn detect(
             .total_cmp(&a.response)
             .then((a.row, a.col).cmp(&(b.row, b.col)))
     });
-    keypoints.truncate(cfg.max_keypoints);
-    keypoints
+    balanced(keypoints, cols, cfg.max_keypoints)
+}
+
+/// Circumferential sectors for the keypoint quota (see [`balanced`]).
+const SECTORS: usize = 8;
+
+/// Keeps `max` keypoints spread around the circumference: first the strongest
+/// `ceil(max / SECTORS)` of each of the `SECTORS` arcs, then the strongest of the rest.
+/// A global top-`max` puts most keypoints where the texture happens to be strongest, and a
+/// partial view (half the circumference occluded) then shares few of them: on the synthetic
+/// half-occluded pair the quota raised K from 5 to the figures in `matching::tests`.
+fn balanced(sorted: Vec<Keypoint>, cols: usize, max: usize) -> Vec<Keypoint> {
+    if sorted.len() <= max {
+        return sorted;
+    }
+    let quota = max.div_ceil(SECTORS);
+    let mut taken = vec![0usize; SECTORS];
+    let (mut first, mut rest) = (Vec::with_capacity(max), Vec::new());
+    for kp in sorted {
+        let s = kp.col * SECTORS / cols.max(1);
+        if first.len() < max && taken[s.min(SECTORS - 1)] < quota {
+            taken[s.min(SECTORS - 1)] += 1;
+            first.push(kp);
+        } else {
+            rest.push(kp);
+        }
+    }
+    let missing = max.saturating_sub(first.len());
+    first.extend(rest.into_iter().take(missing));
+    first.sort_by(|a, b| {
+        b.response
+            .total_cmp(&a.response)
+            .then((a.row, a.col).cmp(&(b.row, b.col)))
+    });
+    first
 }

@@ -198,9 +198,13 @@ pub fn compare_prepared(
     cfg: &MatchingConfig,
     shape: &PatchShape,
 ) -> PairResult {
-    let [forward, reversed] =
-        Heading::BOTH.map(|h| compare_heading(q, side, c, h, cfg, shape));
-    let key = |r: &PairResult| (r.rejection != Some(Rejection::InsufficientOverlap), r.inliers);
+    let [forward, reversed] = Heading::BOTH.map(|h| compare_heading(q, side, c, h, cfg, shape));
+    let key = |r: &PairResult| {
+        (
+            r.rejection != Some(Rejection::InsufficientOverlap),
+            r.inliers,
+        )
+    };
     let better_reversed = key(&reversed) > key(&forward)
         || (key(&reversed) == key(&forward) && reversed.score > forward.score)
         || (forward.rejection == Some(Rejection::InsufficientOverlap)

@@ -121,30 +121,43 @@ pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
             col_g[c * k..(c + 1) * k].iter_mut().for_each(|x| *x *= inv);
         }
     }
-    // Normal equations of the column-centred problem.
-    let mut m = Mat::<f64>::zeros(k, k);
-    let mut b = Mat::<f64>::zeros(k, 1);
-    let mut row_n = vec![0usize; rows];
+    // Normal equations of the column-centred problem, from sparse sums:
+    // sum_cells (g - gbar_c)(g - gbar_c)^T = sum_cells g g^T - sum_c n_c gbar_c gbar_c^T
+    // (g has 3 non-zeros per cell: e_r, z n1, z n2), likewise for the right-hand side.
+    let mut mm = vec![0.0; k * k];
+    let mut bv = vec![0.0; k];
     for r in 0..rows {
+        let z = row_z_m(d, r);
         for c in 0..cols {
             let i = d.index(r, c);
             if !d.observed[i] {
                 continue;
             }
-            row_n[r] += 1;
-            regressors(r, c, &mut g);
-            for (gv, mean) in g.iter_mut().zip(&col_g[c * k..(c + 1) * k]) {
-                *gv -= mean;
-            }
-            let y = d.offsets_m[i] - col_y[c];
-            for a in 0..k {
-                b[(a, 0)] += g[a] * y;
-                for bb in 0..k {
-                    m[(a, bb)] += g[a] * g[bb];
+            let (t1, t2, y) = (z * d.normal_e1[c], z * d.normal_e2[c], d.offsets_m[i]);
+            let nz = [(r, 1.0), (rows, t1), (rows + 1, t2)];
+            for &(a, va) in &nz {
+                bv[a] += va * y;
+                for &(bb, vb) in &nz {
+                    mm[a * k + bb] += va * vb;
                 }
             }
         }
     }
+    for c in 0..cols {
+        let n = col_n[c] as f64;
+        if n == 0.0 {
+            continue;
+        }
+        let gbar = &col_g[c * k..(c + 1) * k];
+        for a in 0..k {
+            bv[a] -= n * gbar[a] * col_y[c];
+            for bb in 0..k {
+                mm[a * k + bb] -= n * gbar[a] * gbar[bb];
+            }
+        }
+    }
+    let mut m = Mat::<f64>::from_fn(k, k, |a, bb| mm[a * k + bb]);
+    let b = Mat::<f64>::from_fn(k, 1, |a, _| bv[a]);
     // Gauge: sum gamma = 0 (u u^T on the gamma block); ridge for empty rows and for a
     // degenerate tilt column (e.g. all rows but one unobserved).
     let trace: f64 = (0..k).map(|a| m[(a, a)]).sum::<f64>().max(1e-300);
@@ -166,21 +179,26 @@ pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
         .iter()
         .map(|t| if t.is_finite() { *t } else { 0.0 })
         .collect();
+    // alpha_c = column mean of y minus the column mean of the other terms.
+    let alpha: Vec<f64> = (0..cols)
+        .map(|c| {
+            let mean_other: f64 = col_g[c * k..(c + 1) * k]
+                .iter()
+                .zip(&theta)
+                .map(|(a, t)| a * t)
+                .sum();
+            col_y[c] - mean_other
+        })
+        .collect();
+    let (b1, b2) = (theta[rows], theta[rows + 1]);
     let mut out = vec![0.0; rows * cols];
     for r in 0..rows {
+        let z = row_z_m(d, r);
         for c in 0..cols {
             let i = d.index(r, c);
             if d.observed[i] {
-                regressors(r, c, &mut g);
-                let fit_other: f64 = g.iter().zip(&theta).map(|(a, t)| a * t).sum();
-                let mean_other: f64 = col_g[c * k..(c + 1) * k]
-                    .iter()
-                    .zip(&theta)
-                    .map(|(a, t)| a * t)
-                    .sum();
-                // alpha_c = col mean of y - col mean of the other terms.
-                let alpha = col_y[c] - mean_other;
-                out[i] = d.offsets_m[i] - alpha - fit_other;
+                let fit = alpha[c] + theta[r] + z * (b1 * d.normal_e1[c] + b2 * d.normal_e2[c]);
+                out[i] = d.offsets_m[i] - fit;
             }
         }
     }

@@ -56,8 +56,9 @@ impl PatchShape {
         for r in 0..rows {
             for c in 0..cols {
                 let (dz, dp) = (r as f64 - hr, c as f64 - hc);
-                let w = (-0.5 * (dz * dz / (cfg.sigma_z_cells * cfg.sigma_z_cells)
-                    + dp * dp / (cfg.sigma_p_cells * cfg.sigma_p_cells)))
+                let w = (-0.5
+                    * (dz * dz / (cfg.sigma_z_cells * cfg.sigma_z_cells)
+                        + dp * dp / (cfg.sigma_p_cells * cfg.sigma_p_cells)))
                     .exp();
                 weights.push(w as f32);
             }
@@ -96,7 +97,13 @@ impl PatchShape {
 
     /// Calls `f(k, cell)` for each patch position `k` with the grid cell index it covers
     /// (`None` beyond the axial ends; columns wrap around the circumference).
-    fn visit(&self, grid: (usize, usize), row: usize, col: usize, mut f: impl FnMut(usize, Option<usize>)) {
+    fn visit(
+        &self,
+        grid: (usize, usize),
+        row: usize,
+        col: usize,
+        mut f: impl FnMut(usize, Option<usize>),
+    ) {
         let (grows, gcols) = (grid.0 as isize, grid.1 as isize);
         let (hr, hc) = ((self.rows / 2) as isize, (self.cols / 2) as isize);
         let mut k = 0;
@@ -148,9 +155,17 @@ impl PatchShape {
                 .map(|k| f64::from(self.weights[k]) * (values[k] - mean).powi(2))
                 .sum::<f64>()
                 / sw;
-            let scale = if var.sqrt() > 1e-9 { 1.0 / var.sqrt() } else { 1.0 };
+            let scale = if var.sqrt() > 1e-9 {
+                1.0 / var.sqrt()
+            } else {
+                1.0
+            };
             for k in 0..p {
-                values[k] = if mask[k] { (values[k] - mean) * scale } else { 0.0 };
+                values[k] = if mask[k] {
+                    (values[k] - mean) * scale
+                } else {
+                    0.0
+                };
             }
         }
         (values, mask)

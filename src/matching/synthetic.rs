@@ -139,7 +139,9 @@ fn waves(rng: &mut Rng, n: usize, kz: (f64, f64), kp: (f64, f64)) -> Vec<Wave> {
         })
         .collect();
     // Unit RMS: the waves are independent, each of RMS amp / sqrt(2).
-    let rms = (w.iter().map(|w| w.amp * w.amp / 2.0).sum::<f64>()).sqrt().max(1e-12);
+    let rms = (w.iter().map(|w| w.amp * w.amp / 2.0).sum::<f64>())
+        .sqrt()
+        .max(1e-12);
     w.iter_mut().for_each(|w| w.amp /= rms);
     w
 }
@@ -196,8 +198,7 @@ impl JointSurface {
                         );
                 }
                 let (n1, n2) = ((TAU * p).cos(), (TAU * p).sin());
-                let nuisance = obs.radius_error_m
-                    + obs.ellipticity_m * (2.0 * TAU * p).cos()
+                let nuisance = obs.radius_error_m + obs.ellipticity_m * (2.0 * TAU * p).cos()
                     - (obs.centring_m[0] * n1 + obs.centring_m[1] * n2)
                     + z_m * (obs.tilt[0] * n1 + obs.tilt[1] * n2);
                 offsets[r * cols + c] = h + nuisance + obs.noise_m * rng.normal();
@@ -212,9 +213,9 @@ impl JointSurface {
             for c in 0..cols {
                 let p = (c as f64 + 0.5) / cols as f64;
                 let from_bottom = p.min(1.0 - p);
-                let in_missing = obs.missing_arc.is_some_and(|(start, frac)| {
-                    (p - start).rem_euclid(1.0) < frac
-                });
+                let in_missing = obs
+                    .missing_arc
+                    .is_some_and(|(start, frac)| (p - start).rem_euclid(1.0) < frac);
                 if from_bottom < bottom || in_missing {
                     observed[r * cols + c] = false;
                 }
@@ -225,7 +226,10 @@ impl JointSurface {
                 (rng.uniform() * rows as f64) as usize,
                 (rng.uniform() * cols as f64) as usize,
             );
-            let (hr, hc) = (1 + (rng.uniform() * 3.0) as usize, 4 + (rng.uniform() * 20.0) as usize);
+            let (hr, hc) = (
+                1 + (rng.uniform() * 3.0) as usize,
+                4 + (rng.uniform() * 20.0) as usize,
+            );
             for r in r0..(r0 + hr).min(rows) {
                 for c in c0..c0 + hc {
                     observed[r * cols + c % cols] = false;
