@@ -31,3 +31,14 @@ __all__ = [
     "load_config",
 ]
 # Each layer appends its public names below (one block per layer keeps merges clean).
+
+# --- matching (issue 5) ---
+from decod_rs.matching import (  # noqa: E402
+    LandmarkDatabase,
+    PairResult,
+    QueryResult,
+    compare,
+    synthetic_landmark,
+)
+
+__all__ += ["LandmarkDatabase", "PairResult", "QueryResult", "compare", "synthetic_landmark"]

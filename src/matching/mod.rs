@@ -122,10 +122,17 @@ impl PreparedLandmark {
         landmark.validate()?;
         let d = &landmark.descriptor;
         let grid = (d.rows, d.cols);
-        let field = normalise::normalised_field(d, Normalisation::from_config(cfg), cfg.sign_only);
+        // Keypoints always come from the offsets' magnitudes; the sign-only ablation changes
+        // what the patches compare, not where they are (a sign field has no extrema).
+        let field = normalise::normalised_field(d, Normalisation::from_config(cfg), false);
         let keypoints = keypoints::detect(&field, &d.observed, d.rows, d.cols, cfg, |r, c| {
             shape.coverage(&d.observed, grid, r, c)
         });
+        let field = if cfg.sign_only {
+            normalise::normalised_field(d, Normalisation::from_config(cfg), true)
+        } else {
+            field
+        };
         let patches: Vec<_> = keypoints
             .iter()
             .map(|kp| shape.extract(&field, &d.observed, grid, kp))

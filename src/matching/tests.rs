@@ -342,3 +342,32 @@ fn precision_and_recall_on_fifty_joints() {
     assert!(p == 1.0, "precision {p}");
     assert!(r >= 0.9, "recall {r}");
 }
+
+#[test]
+fn ablations_run_and_verification_keeps_precision() {
+    // The paper's ablations on the 50-joint set; figures go to the issue note. Without
+    // verification every query is accepted (no K check, no uniqueness), so its precision
+    // cannot exceed the verified matcher's.
+    let (p_full, _, _) = precision_recall(&cfg(), 50, 22);
+    let mut figures = Vec::new();
+    for (name, tweak) in [
+        (
+            "no_verification",
+            (|c: &mut MatchingConfig| c.verification = false) as fn(&mut MatchingConfig),
+        ),
+        ("scale_only", |c| c.normalisation = "scale_only".into()),
+        ("sign_only", |c| c.sign_only = true),
+    ] {
+        let mut c = cfg();
+        tweak(&mut c);
+        let (p, r, a) = precision_recall(&c, 50, 22);
+        figures.push(format!(
+            "{name}: precision {p:.3} recall {r:.3} accepted {a}"
+        ));
+        if name == "no_verification" {
+            assert_eq!(a, 50);
+            assert!(p <= p_full);
+        }
+    }
+    eprintln!("paper config precision {p_full:.3}; {}", figures.join("; "));
+}
