@@ -53,9 +53,9 @@ def test_different_joints_are_not_matched() -> None:
 
 def test_batch_query_finds_the_right_joints_and_carries_factor_data() -> None:
     db = LandmarkDatabase(CFG)
-    assert db.extend(synthetic_landmark(3, k, stamp=8.0 * k, view_seed=k) for k in range(8)) == list(
-        range(8)
-    )
+    assert db.extend(
+        synthetic_landmark(3, k, stamp=8.0 * k, view_seed=k) for k in range(8)
+    ) == list(range(8))
     assert len(db) == 8
     queries = [
         synthetic_landmark(3, k, stamp=900.0 - k, view_seed=100 + k, reversed=True)
@@ -122,7 +122,11 @@ def test_ablation_switches_and_bad_config() -> None:
     a = synthetic_landmark(7, 1, view_seed=1)
     b = synthetic_landmark(7, 1, stamp=100.0, view_seed=2)
     base = CFG.to_dict()["matching"]
-    for overrides in ({"verification": False}, {"normalisation": "scale_only"}, {"sign_only": True}):
+    for overrides in (
+        {"verification": False},
+        {"normalisation": "scale_only"},
+        {"sign_only": True},
+    ):
         r = compare(a, b, {**base, **overrides})
         assert r.inliers > 0
     no_verif = compare(a, b, {**base, "verification": False})

@@ -33,7 +33,7 @@ __all__ = [
 # Each layer appends its public names below (one block per layer keeps merges clean).
 
 # --- matching (issue 5) ---
-from decod_rs.matching import (  # noqa: E402
+from decod_rs.matching import (
     LandmarkDatabase,
     PairResult,
     QueryResult,

@@ -146,7 +146,7 @@ fn balanced(sorted: Vec<Keypoint>, cols: usize, max: usize) -> Vec<Keypoint> {
         return sorted;
     }
     let quota = max.div_ceil(SECTORS);
-    let mut taken = vec![0usize; SECTORS];
+    let mut taken = [0usize; SECTORS];
     let (mut first, mut rest) = (Vec::with_capacity(max), Vec::new());
     for kp in sorted {
         let s = kp.col * SECTORS / cols.max(1);

@@ -10,6 +10,9 @@
 //! ([`database`]): eligibility, rayon over candidates, acceptance iff `K >= min_inliers` and
 //! the best score is unique. [`synthetic`] generates realistic descriptors for tests and benches.
 
+// Grid code indexes several parallel arrays by (row, col); ranges read best there.
+#![allow(clippy::needless_range_loop)]
+
 pub mod correspondences;
 pub mod database;
 pub mod heading;
