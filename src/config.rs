@@ -145,6 +145,11 @@ pub struct MatchingConfig {
     pub max_shift_z_cells: usize,
     /// Largest plausible circumferential offset (gravity reference error), in columns.
     pub max_shift_p_cells: usize,
+    /// Candidates whose submap is within this many seconds of the best candidate's are not
+    /// counted as its runner-up (they may be a second view of the same joint from the same
+    /// traversal). 0 (paper): every other eligible candidate competes. Keep it below the time
+    /// the robot needs to travel one joint spacing, or identical joints stop competing.
+    pub runner_up_exclusion_s: f64,
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
@@ -246,6 +251,7 @@ impl DecodConfig {
                 verify_tolerance_p_cells: 2,
                 max_shift_z_cells: 3,
                 max_shift_p_cells: 16,
+                runner_up_exclusion_s: 0.0,
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -281,6 +287,7 @@ impl DecodConfig {
         c.matching.max_keypoints = 48;
         c.matching.max_shift_z_cells = 3;
         c.matching.max_shift_p_cells = 16;
+        c.matching.runner_up_exclusion_s = 0.0;
         c
     }
 

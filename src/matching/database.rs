@@ -261,18 +261,24 @@ fn decide(
     cfg: &MatchingConfig,
 ) -> QueryResult {
     let rank = |p: &PairResult| (p.score, p.inliers);
+    let better = |a: &(usize, PairResult), b: Option<&(usize, PairResult)>| {
+        b.is_none_or(|o| rank(&a.1) > rank(&o.1) || (rank(&a.1) == rank(&o.1) && a.0 < o.0))
+    };
     let mut best: Option<&(usize, PairResult)> = None;
+    for item in pairs {
+        if better(item, best) {
+            best = Some(item);
+        }
+    }
+    // Runner-up: the best other candidate not excluded as a view of the same joint.
+    let best_stamp = best.map(|b| entries[b.0].landmark.submap_stamp);
     let mut second: Option<&(usize, PairResult)> = None;
     for item in pairs {
-        let beats = |other: Option<&(usize, PairResult)>| {
-            other.is_none_or(|o| {
-                rank(&item.1) > rank(&o.1) || (rank(&item.1) == rank(&o.1) && item.0 < o.0)
-            })
-        };
-        if beats(best) {
-            second = best;
-            best = Some(item);
-        } else if beats(second) {
+        let same = best.is_some_and(|b| b.0 == item.0);
+        let excluded = best_stamp.is_some_and(|t| {
+            (entries[item.0].landmark.submap_stamp - t).abs() < cfg.runner_up_exclusion_s
+        });
+        if !same && !excluded && better(item, second) {
             second = Some(item);
         }
     }

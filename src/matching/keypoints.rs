@@ -24,6 +24,20 @@ pub struct Keypoint {
     pub response: f64,
 }
 
+/// Column `c + d` around the circumference (`|d| < cols`), without a division.
+#[inline]
+pub fn wrap_col(c: usize, d: isize, cols: usize) -> usize {
+    let x = c as isize + d;
+    let n = cols as isize;
+    (if x < 0 {
+        x + n
+    } else if x >= n {
+        x - n
+    } else {
+        x
+    }) as usize
+}
+
 /// Separable Gaussian smoothing of `values` (row-major `rows x cols`), circular along
 /// columns, clipped along rows.
 fn smooth(values: &[f64], rows: usize, cols: usize, sigma_r: f64, sigma_c: f64) -> Vec<f64> {
@@ -34,29 +48,33 @@ fn smooth(values: &[f64], rows: usize, cols: usize, sigma_r: f64, sigma_c: f64) 
             .collect()
     };
     let (kr, kc) = (kernel(sigma_r), kernel(sigma_c));
-    let (hr, hc) = ((kr.len() / 2) as isize, (kc.len() / 2) as isize);
+    let (hr, hc) = (kr.len() / 2, kc.len() / 2);
+    // Along p: each row padded circularly, then contiguous dot products (vectorises).
     let mut tmp = vec![0.0; rows * cols];
+    let mut padded = vec![0.0; cols + 2 * hc];
     for r in 0..rows {
-        for c in 0..cols {
-            let mut acc = 0.0;
-            for (k, w) in kc.iter().enumerate() {
-                let cc = (c as isize + k as isize - hc).rem_euclid(cols as isize) as usize;
-                acc += w * values[r * cols + cc];
-            }
-            tmp[r * cols + c] = acc;
+        let row = &values[r * cols..(r + 1) * cols];
+        for (k, v) in padded.iter_mut().enumerate() {
+            *v = row[(k + cols - hc % cols) % cols];
+        }
+        for (c, out) in tmp[r * cols..(r + 1) * cols].iter_mut().enumerate() {
+            *out = kc
+                .iter()
+                .zip(&padded[c..c + kc.len()])
+                .map(|(w, v)| w * v)
+                .sum();
         }
     }
+    // Along z: clipped at the ends, as whole-row axpys.
     let mut out = vec![0.0; rows * cols];
     for r in 0..rows {
-        for c in 0..cols {
-            let mut acc = 0.0;
-            for (k, w) in kr.iter().enumerate() {
-                let rr = r as isize + k as isize - hr;
-                if rr >= 0 && (rr as usize) < rows {
-                    acc += w * tmp[rr as usize * cols + c];
-                }
+        let dst = &mut out[r * cols..(r + 1) * cols];
+        for (k, w) in kr.iter().enumerate() {
+            let rr = r as isize + k as isize - hr as isize;
+            if rr >= 0 && (rr as usize) < rows {
+                let src = &tmp[rr as usize * cols..(rr as usize + 1) * cols];
+                dst.iter_mut().zip(src).for_each(|(d, s)| *d += w * s);
             }
-            out[r * cols + c] = acc;
         }
     }
     out
@@ -108,7 +126,7 @@ pub fn detect(
                     continue;
                 }
                 for dc in -nc..=nc {
-                    let cc = (c as isize + dc).rem_euclid(cols as isize) as usize;
+                    let cc = wrap_col(c, dc, cols);
                     let j = rr as usize * cols + cc;
                     if j != i && beats(j, i) {
                         is_max = false;

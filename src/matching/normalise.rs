@@ -88,29 +88,22 @@ pub fn row_z_m(d: &Descriptor, r: usize) -> f64 {
 pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
     let (rows, cols) = (d.rows, d.cols);
     let k = rows + 2; // gamma per row, beta1, beta2
-    // Regressors of cell (r, c) besides alpha: e_r, z n1(c), z n2(c).
-    let regressors = |r: usize, c: usize, out: &mut [f64]| {
-        out.iter_mut().for_each(|x| *x = 0.0);
-        out[r] = 1.0;
-        let z = row_z_m(d, r);
-        out[rows] = z * d.normal_e1[c];
-        out[rows + 1] = z * d.normal_e2[c];
-    };
-    // Column means of y and of the regressors over observed cells (alpha eliminated).
+    // Column means of y and of the regressors besides alpha (e_r, z n1(c), z n2(c)) over
+    // observed cells: alpha is eliminated by centring each column.
     let mut col_n = vec![0usize; cols];
     let mut col_y = vec![0.0; cols];
     let mut col_g = vec![0.0; cols * k];
-    let mut g = vec![0.0; k];
     for r in 0..rows {
+        let z = row_z_m(d, r);
         for c in 0..cols {
             let i = d.index(r, c);
             if d.observed[i] {
-                regressors(r, c, &mut g);
                 col_n[c] += 1;
                 col_y[c] += d.offsets_m[i];
-                for (acc, gv) in col_g[c * k..(c + 1) * k].iter_mut().zip(&g) {
-                    *acc += gv;
-                }
+                let g = &mut col_g[c * k..(c + 1) * k];
+                g[r] += 1.0;
+                g[rows] += z * d.normal_e1[c];
+                g[rows + 1] += z * d.normal_e2[c];
             }
         }
     }

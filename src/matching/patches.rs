@@ -111,7 +111,7 @@ impl PatchShape {
             let r = row as isize + dr;
             for dc in -hc..=hc {
                 let cell = if r >= 0 && r < grows {
-                    let c = (col as isize + dc).rem_euclid(gcols);
+                    let c = super::keypoints::wrap_col(col, dc, grid.1) as isize;
                     Some((r * gcols + c) as usize)
                 } else {
                     None

@@ -371,3 +371,21 @@ fn ablations_run_and_verification_keeps_precision() {
     }
     eprintln!("paper config precision {p_full:.3}; {}", figures.join("; "));
 }
+
+#[test]
+fn runner_up_exclusion_lets_two_views_of_one_joint_through() {
+    let j = joint(1, 8);
+    let mut db = LandmarkDatabase::new(&cfg());
+    db.add(j.observe(&Observation::default(), 1)).unwrap();
+    db.add(j.observe(&later(8.0), 2)).unwrap(); // the same joint, next submap
+    let q = j.observe(&later(500.0), 3);
+    assert_eq!(
+        db.query(&q, &cfg()).unwrap().rejection,
+        Some(Rejection::NotUnique)
+    );
+    let mut c = cfg();
+    c.runner_up_exclusion_s = 10.0;
+    let r = db.query(&q, &c).unwrap();
+    assert!(r.accepted, "{r:?}");
+    assert_eq!(r.runner_up_index, None);
+}
