@@ -8,13 +8,16 @@
 //!
 //! Acceptance: the best candidate (highest `S`, then `K`, then lowest index) is accepted iff
 //! `K >= min_inliers` AND it is unique: `S_best >= uniqueness_ratio * S_runner_up`, where the
-//! runner-up is the best score among all OTHER eligible candidates. Identical precast joints
-//! score as high as the true joint (often higher), so no absolute threshold can reject
-//! aliasing; only a margin over the runner-up can. Measured on the synthetic sets
-//! (`matching::tests`): an aliased corridor (5 candidates of the identical joint, different
-//! noise) gives best/runner-up score ratios of 1.0–1.15, while a corridor of merely similar
-//! joints (same pipe, own roughness) gives runner-ups at K <= 4 and ratios >= 4; 1.2 separates
-//! them with a margin on both sides.
+//! runner-up is the best score among all OTHER eligible candidates (optionally not those
+//! within `runner_up_exclusion_s` of the best, which may be a second view of the same joint).
+//! Identical precast joints score as high as the true joint (often higher), so no absolute
+//! threshold can reject aliasing; only a margin over the runner-up can. Measured on the
+//! synthetic sets (tunnel grid, random views): an aliased corridor (4 identical joints,
+//! different noise and views, 60 queries) gives best/runner-up ratios 1.00–1.72 (median
+//! ~1.15; 22 of 60 above 1.2), while true loops among 50 distinct joints of one pipe give
+//! 3.7–15.5 (runner-ups at K <= 3, true K 8–31, mean 20). `uniqueness_ratio = 2.0` rejects
+//! all of the former and keeps all of the latter. A K margin adds nothing here: at fixed
+//! `N_i + N_j` the score ratio is the K ratio.
 //!
 //! Save/load: JSON `{format, version, config, landmarks}`; the prepared data is rebuilt on load
 //! (it depends on the config). A file of another format or version is a

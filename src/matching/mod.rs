@@ -223,6 +223,10 @@ pub fn compare_prepared(
     if better_reversed { reversed } else { forward }
 }
 
+/// One heading. Overlap (the paper is silent on its threshold): mutually observed cells over
+/// all grid cells, rejected below `min_overlap_fraction` (0.25). On synthetic views the
+/// lower-half-occluded pair has overlap 0.42 and K = 13, a one-third view 0.33 and K = 7, so
+/// 0.25 only removes fragments that could not reach K = 9 anyway.
 fn compare_heading(
     q: &PreparedLandmark,
     side: &QuerySide,

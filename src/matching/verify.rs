@@ -16,7 +16,7 @@
 //! competition) and 16 columns (22.5°, far above the gravity error of an IMU). A random
 //! correspondence then falls inside the winning box with probability
 //! `3 * 5 / (16 * 256) ~ 0.4 %`, so wrong pairs reach K <= 3 on the synthetic set while true
-//! pairs reach K >= 20 (figures in the issue note).
+//! pairs reach K = 8–31 (mean 20; 50 joints x 2 random views, tunnel grid).
 
 use crate::config::MatchingConfig;
 
