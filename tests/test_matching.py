@@ -109,6 +109,12 @@ def test_database_save_load_round_trip_and_version_error(tmp_path: Path) -> None
         b.accepted,
     )
     np.testing.assert_array_equal(back.landmark(1).descriptor, db.landmark(1).descriptor)
+    pipe = LandmarkDatabase("pipe")
+    pipe.add(synthetic_landmark(6, 1, grid="pipe"))
+    pipe.save(tmp_path / "pipe.json")
+    # A loaded database keeps the config it was saved with (pipe, not the tunnel default).
+    saved = json.loads(LandmarkDatabase.load(tmp_path / "pipe.json")._db.config_json())
+    assert saved == load_config(preset="pipe").to_dict()["matching"]
     doc = json.loads(path.read_text())
     doc["version"] = 99
     path.write_text(json.dumps(doc))

@@ -133,7 +133,7 @@ class LandmarkDatabase:
         """Read a saved database; ``DatabaseError`` on another format version."""
         config_json = None if config is None else matching_config_json(config)
         native = _core.LandmarkDatabase.load(str(path), config_json)
-        return cls._wrap(native, config_json or matching_config_json(None))
+        return cls._wrap(native, native.config_json())
 
     def __len__(self) -> int:
         return len(self._db)

@@ -345,6 +345,11 @@ impl PyLandmarkDatabase {
         let inner = detached(py, move || LandmarkDatabase::load(&path, cfg.as_ref()))?;
         Ok(Self { inner })
     }
+    /// The `[matching]` config the entries are prepared with, as JSON.
+    fn config_json(&self) -> PyResult<String> {
+        serde_json::to_string(self.inner.config())
+            .map_err(|e| to_py_err(DecodError::config("matching", e.to_string())))
+    }
     fn __len__(&self) -> usize {
         self.inner.len()
     }
