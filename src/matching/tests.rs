@@ -389,3 +389,28 @@ fn runner_up_exclusion_lets_two_views_of_one_joint_through() {
     assert!(r.accepted, "{r:?}");
     assert_eq!(r.runner_up_index, None);
 }
+
+#[test]
+fn pipe_grid_matches_and_degenerate_input_is_handled() {
+    let g = Grid::pipe();
+    let j = JointSurface::new(g, SurfaceParams::for_grid(&g), 4, 1);
+    let mut rng = Rng::new(3);
+    let a = j.observe(&Observation::random(&g, 0.0, false, &mut rng), 1);
+    let b = j.observe(&Observation::random(&g, 100.0, true, &mut rng), 2);
+    let pipe = DecodConfig::pipe().matching;
+    let r = compare(&a, &b, &pipe).unwrap();
+    assert_eq!(r.heading, Heading::Reversed);
+    assert!(r.inliers >= pipe.min_inliers, "{r:?}");
+    // Nothing observed: no keypoints, a clean rejection, no panic.
+    let mut blind = b.clone();
+    blind.descriptor.observed.iter_mut().for_each(|o| *o = false);
+    blind.descriptor.offsets_m.iter_mut().for_each(|v| *v = 0.0);
+    let r = compare(&a, &blind, &pipe).unwrap();
+    assert_eq!(r.rejection, Some(Rejection::InsufficientOverlap));
+    // Another grid: a named error.
+    let mut small = b.clone();
+    small.descriptor.rows = 8;
+    small.descriptor.offsets_m.truncate(8 * 256);
+    small.descriptor.observed.truncate(8 * 256);
+    assert!(matches!(compare(&a, &small, &pipe), Err(DecodError::InvalidInput { .. })));
+}
