@@ -16,8 +16,9 @@
 //! normal matrix, which leaves the residual unchanged because `u` spans its null space. Rows
 //! with no observed cell get a tiny ridge so the system stays definite (their `gamma` is 0).
 
+use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::Solve;
-use faer::{Mat, Side};
+use faer::{Accum, Mat, Par, Side};
 
 use crate::config::MatchingConfig;
 use crate::landmark::Descriptor;
@@ -114,43 +115,75 @@ pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
             col_g[c * k..(c + 1) * k].iter_mut().for_each(|x| *x *= inv);
         }
     }
-    // Normal equations of the column-centred problem, from sparse sums:
-    // sum_cells (g - gbar_c)(g - gbar_c)^T = sum_cells g g^T - sum_c n_c gbar_c gbar_c^T
-    // (g has 3 non-zeros per cell: e_r, z n1, z n2), likewise for the right-hand side.
-    let mut mm = vec![0.0; k * k];
-    let mut bv = vec![0.0; k];
+    // Normal equations of the column-centred problem:
+    // sum_cells (g - gbar_c)(g - gbar_c)^T = sum_cells g g^T - sum_c n_c gbar_c gbar_c^T.
+    // The first sum is sparse (g = e_r + z n1 e_b1 + z n2 e_b2): per-row sums. The second is
+    // one GEMM, G^T G with the rows of G = sqrt(n_c) gbar_c (cols x k), likewise for b.
+    let (mut row_cnt, mut row_t1, mut row_t2, mut row_y) = (
+        vec![0.0; rows],
+        vec![0.0; rows],
+        vec![0.0; rows],
+        vec![0.0; rows],
+    );
+    let (mut s11, mut s12, mut s22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for r in 0..rows {
         let z = row_z_m(d, r);
-        for c in 0..cols {
-            let i = d.index(r, c);
-            if !d.observed[i] {
-                continue;
-            }
-            let (t1, t2, y) = (z * d.normal_e1[c], z * d.normal_e2[c], d.offsets_m[i]);
-            let nz = [(r, 1.0), (rows, t1), (rows + 1, t2)];
-            for &(a, va) in &nz {
-                bv[a] += va * y;
-                for &(bb, vb) in &nz {
-                    mm[a * k + bb] += va * vb;
-                }
-            }
-        }
-    }
-    for c in 0..cols {
-        let n = col_n[c] as f64;
-        if n == 0.0 {
-            continue;
-        }
-        let gbar = &col_g[c * k..(c + 1) * k];
-        for a in 0..k {
-            bv[a] -= n * gbar[a] * col_y[c];
-            for bb in 0..k {
-                mm[a * k + bb] -= n * gbar[a] * gbar[bb];
+        let row = r * cols..(r + 1) * cols;
+        for (((&o, &y), &n1), &n2) in d.observed[row.clone()]
+            .iter()
+            .zip(&d.offsets_m[row])
+            .zip(&d.normal_e1)
+            .zip(&d.normal_e2)
+        {
+            if o {
+                let (t1, t2) = (z * n1, z * n2);
+                row_cnt[r] += 1.0;
+                row_t1[r] += t1;
+                row_t2[r] += t2;
+                row_y[r] += y;
+                s11 += t1 * t1;
+                s12 += t1 * t2;
+                s22 += t2 * t2;
+                b1 += t1 * y;
+                b2 += t2 * y;
             }
         }
     }
-    let mut m = Mat::<f64>::from_fn(k, k, |a, bb| mm[a * k + bb]);
-    let b = Mat::<f64>::from_fn(k, 1, |a, _| bv[a]);
+    let mut m = Mat::<f64>::zeros(k, k);
+    let mut b = Mat::<f64>::zeros(k, 1);
+    for r in 0..rows {
+        m[(r, r)] = row_cnt[r];
+        m[(r, rows)] = row_t1[r];
+        m[(rows, r)] = row_t1[r];
+        m[(r, rows + 1)] = row_t2[r];
+        m[(rows + 1, r)] = row_t2[r];
+        b[(r, 0)] = row_y[r];
+    }
+    m[(rows, rows)] = s11;
+    m[(rows, rows + 1)] = s12;
+    m[(rows + 1, rows)] = s12;
+    m[(rows + 1, rows + 1)] = s22;
+    b[(rows, 0)] = b1;
+    b[(rows + 1, 0)] = b2;
+    let sqrt_n: Vec<f64> = col_n.iter().map(|&n| (n as f64).sqrt()).collect();
+    let g = Mat::<f64>::from_fn(cols, k, |c, a| sqrt_n[c] * col_g[c * k + a]);
+    let gy = Mat::<f64>::from_fn(cols, 1, |c, _| sqrt_n[c] * col_y[c]);
+    matmul(
+        m.as_mut(),
+        Accum::Add,
+        g.transpose(),
+        g.as_ref(),
+        -1.0,
+        Par::Seq,
+    );
+    matmul(
+        b.as_mut(),
+        Accum::Add,
+        g.transpose(),
+        gy.as_ref(),
+        -1.0,
+        Par::Seq,
+    );
     // Gauge: sum gamma = 0 (u u^T on the gamma block); ridge for empty rows and for a
     // degenerate tilt column (e.g. all rows but one unobserved).
     let trace: f64 = (0..k).map(|a| m[(a, a)]).sum::<f64>().max(1e-300);

@@ -403,7 +403,11 @@ fn pipe_grid_matches_and_degenerate_input_is_handled() {
     assert!(r.inliers >= pipe.min_inliers, "{r:?}");
     // Nothing observed: no keypoints, a clean rejection, no panic.
     let mut blind = b.clone();
-    blind.descriptor.observed.iter_mut().for_each(|o| *o = false);
+    blind
+        .descriptor
+        .observed
+        .iter_mut()
+        .for_each(|o| *o = false);
     blind.descriptor.offsets_m.iter_mut().for_each(|v| *v = 0.0);
     let r = compare(&a, &blind, &pipe).unwrap();
     assert_eq!(r.rejection, Some(Rejection::InsufficientOverlap));
@@ -412,5 +416,8 @@ fn pipe_grid_matches_and_degenerate_input_is_handled() {
     small.descriptor.rows = 8;
     small.descriptor.offsets_m.truncate(8 * 256);
     small.descriptor.observed.truncate(8 * 256);
-    assert!(matches!(compare(&a, &small, &pipe), Err(DecodError::InvalidInput { .. })));
+    assert!(matches!(
+        compare(&a, &small, &pipe),
+        Err(DecodError::InvalidInput { .. })
+    ));
 }
