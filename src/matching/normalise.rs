@@ -16,6 +16,14 @@
 //! normal matrix, which leaves the residual unchanged because `u` spans its null space. Rows
 //! with no observed cell get a tiny ridge so the system stays definite (their `gamma` is 0).
 
+//!
+//! Ablations measured on 50 synthetic joints x 2 random views (tunnel grid, return traversal
+//! reversed; `matching::tests::ablations_run_and_verification_keeps_precision`):
+//! five-variable precision 1.00 / recall 0.98; scale-only 0 accepted (the contour errors,
+//! up to 3 cm of centring against 2 mm of texture, dominate every patch); sign-only
+//! 1.00 / 0.98 (the z-scored patches already discard amplitude); without verification
+//! 0.58 / 0.58 with all 50 queries accepted.
+
 use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::Solve;
 use faer::{Accum, Mat, Par, Side};
