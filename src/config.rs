@@ -143,7 +143,12 @@ pub struct MatchingConfig {
     pub min_overlap_fraction: f64,
     /// Minimum inlier count to accept a loop (9 for trajectories, 15 for high precision).
     pub min_inliers: usize,
-    /// Required ratio between the best and the runner-up candidate score (uniqueness).
+    /// Required ratio between the best and the runner-up candidate score (uniqueness):
+    /// accepted only if `S_best >= uniqueness_ratio * S_runner_up`. Measured on synthetic
+    /// tunnel descriptors (`matching::tests`): aliased corridors (4 identical joints, random
+    /// views, 60 queries) give ratios 1.00–1.72 (22/60 above 1.2), true loops among 50
+    /// distinct joints of one pipe give 3.7–15.5; 2.0 rejects every aliased query and keeps
+    /// every true one.
     pub uniqueness_ratio: f64,
     /// Minimum time between query and candidate submaps, seconds.
     pub min_time_separation_s: f64,
@@ -153,6 +158,29 @@ pub struct MatchingConfig {
     pub sign_only: bool,
     /// Geometric verification on (paper) or off (ablation: best patch similarity wins).
     pub verification: bool,
+    /// Cap on keypoints per descriptor (strongest texture-energy maxima). 48 keeps a pair
+    /// (both headings) near 0.1 ms on one core while true pairs reach K ~ 20-30.
+    pub max_keypoints: usize,
+    /// Keypoint non-maximum suppression half-window along z, in rows.
+    pub keypoint_nms_rows: usize,
+    /// Keypoint non-maximum suppression half-window along p, in columns.
+    pub keypoint_nms_cols: usize,
+    /// Minimum Gaussian-weighted fraction of a patch observed: in its own descriptor for a
+    /// keypoint, and in both descriptors for a patch distance to be finite.
+    pub min_patch_overlap_fraction: f64,
+    /// Verification inlier tolerance along z, in rows (consensus box half-width).
+    pub verify_tolerance_z_cells: usize,
+    /// Verification inlier tolerance along p, in columns.
+    pub verify_tolerance_p_cells: usize,
+    /// Largest plausible axial offset between two views of a boundary, in rows.
+    pub max_shift_z_cells: usize,
+    /// Largest plausible circumferential offset (gravity reference error), in columns.
+    pub max_shift_p_cells: usize,
+    /// Candidates whose submap is within this many seconds of the best candidate's are not
+    /// counted as its runner-up (they may be a second view of the same joint from the same
+    /// traversal). 0 (paper): every other eligible candidate competes. Keep it below the time
+    /// the robot needs to travel one joint spacing, or identical joints stop competing.
+    pub runner_up_exclusion_s: f64,
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
@@ -256,11 +284,20 @@ impl DecodConfig {
                 sigma_p_cells: 11.0,
                 min_overlap_fraction: 0.25,
                 min_inliers: 9,
-                uniqueness_ratio: 1.2,
+                uniqueness_ratio: 2.0,
                 min_time_separation_s: 30.0,
                 normalisation: "five_variable".into(),
                 sign_only: false,
                 verification: true,
+                max_keypoints: 48,
+                keypoint_nms_rows: 1,
+                keypoint_nms_cols: 4,
+                min_patch_overlap_fraction: 0.5,
+                verify_tolerance_z_cells: 1,
+                verify_tolerance_p_cells: 2,
+                max_shift_z_cells: 3,
+                max_shift_p_cells: 16,
+                runner_up_exclusion_s: 0.0,
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -295,6 +332,13 @@ impl DecodConfig {
         c.descriptor.half_length_m = 0.24;
         c.graph.landmark_position_sigma_m = 0.01;
         c.graph.odom_translation_sigma_per_m = 0.025;
+        // Matching works in grid cells; the grid is kept at 16 x 256, so its tunnel values
+        // carry over unchanged (listed here so the pipe preset states them).
+        c.matching.max_keypoints = 48;
+        c.matching.max_shift_z_cells = 3;
+        c.matching.max_shift_p_cells = 16;
+        c.matching.runner_up_exclusion_s = 0.0;
+        c.matching.uniqueness_ratio = 2.0;
         c
     }
 
@@ -359,6 +403,10 @@ impl DecodConfig {
             ("matching.sigma_z_cells", self.matching.sigma_z_cells),
             ("matching.sigma_p_cells", self.matching.sigma_p_cells),
             ("matching.uniqueness_ratio", self.matching.uniqueness_ratio),
+            (
+                "matching.min_patch_overlap_fraction",
+                self.matching.min_patch_overlap_fraction,
+            ),
             ("graph.huber_k", self.graph.huber_k),
         ];
         for (name, value) in positive {

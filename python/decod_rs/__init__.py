@@ -130,3 +130,14 @@ __all__ += [
     "submap_builder",
     "submap_from_points",
 ]
+
+# --- matching (issue 5) ---
+from decod_rs.matching import (
+    LandmarkDatabase,
+    PairResult,
+    QueryResult,
+    compare,
+    synthetic_landmark,
+)
+
+__all__ += ["LandmarkDatabase", "PairResult", "QueryResult", "compare", "synthetic_landmark"]

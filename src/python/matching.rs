@@ -1,7 +1,419 @@
-//! Bindings for the matching layer (filled by its issue).
+//! Bindings for the matching layer: `compare`, `LandmarkDatabase`, the typed results, and
+//! the synthetic descriptor generator (for tests and examples). Configs cross as JSON of the
+//! `[matching]` section (the Python side resolves presets and TOML files). Heavy calls release
+//! the GIL through [`detached`].
 
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::PyArray1;
 use pyo3::prelude::*;
 
-pub(crate) fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+use super::detached;
+use super::errors::to_py_err;
+use super::landmark::PyLandmark;
+use crate::config::MatchingConfig;
+use crate::error::DecodError;
+use crate::landmark::Landmark;
+use crate::matching::synthetic::{Grid, JointSurface, Observation, Rng, SurfaceParams};
+use crate::matching::{self, LandmarkDatabase, PairResult, QueryResult};
+
+fn config_from_json(text: &str) -> PyResult<MatchingConfig> {
+    let cfg: MatchingConfig = serde_json::from_str(text)
+        .map_err(|e| to_py_err(DecodError::config("matching", e.to_string())))?;
+    let mut whole = crate::config::DecodConfig::tunnel();
+    whole.matching = cfg.clone();
+    whole.validate().map_err(to_py_err)?;
+    Ok(cfg)
+}
+
+fn landmarks_of(items: &[PyRef<'_, PyLandmark>]) -> Vec<Arc<Landmark>> {
+    items.iter().map(|l| l.inner.clone()).collect()
+}
+
+/// One query/candidate comparison (see `decod::matching::PairResult`).
+#[pyclass(name = "PairResult", module = "decod_rs._core", frozen)]
+pub(crate) struct PyPairResult {
+    inner: PairResult,
+}
+
+#[pymethods]
+impl PyPairResult {
+    /// Relative heading of the better hypothesis, degrees (0 or 180).
+    #[getter]
+    fn heading_deg(&self) -> f64 {
+        self.inner.heading.degrees()
+    }
+    /// Fraction of cells observed in both descriptors under that heading.
+    #[getter]
+    fn overlap_fraction(&self) -> f64 {
+        self.inner.overlap_fraction
+    }
+    /// Keypoints of the query, N_i.
+    #[getter]
+    fn query_keypoints(&self) -> usize {
+        self.inner.query_keypoints
+    }
+    /// Keypoints of the candidate, N_j.
+    #[getter]
+    fn candidate_keypoints(&self) -> usize {
+        self.inner.candidate_keypoints
+    }
+    /// Unique mutual nearest-neighbour correspondences.
+    #[getter]
+    fn matches(&self) -> usize {
+        self.inner.matches
+    }
+    /// Verified inliers K.
+    #[getter]
+    fn inliers(&self) -> usize {
+        self.inner.inliers
+    }
+    /// S = 2K / (N_i + N_j).
+    #[getter]
+    fn score(&self) -> f64 {
+        self.inner.score
+    }
+    /// Axial offset, metres (query feature at z lies at z + dz_m in the candidate).
+    #[getter]
+    fn dz_m(&self) -> f64 {
+        self.inner.dz_m
+    }
+    /// Circumferential offset, fraction of the circumference in [-0.5, 0.5).
+    #[getter]
+    fn dp(&self) -> f64 {
+        self.inner.dp
+    }
+    /// Why the pair is rejected on its own (`insufficient_overlap`, `too_few_inliers`), or None.
+    #[getter]
+    fn rejection(&self) -> Option<&'static str> {
+        self.inner.rejection.map(|r| r.as_str())
+    }
+    fn __repr__(&self) -> String {
+        let r = &self.inner;
+        format!(
+            "PairResult(heading={}, K={}, S={:.3}, dz_m={:.3}, dp={:.4}, overlap={:.2}, rejection={:?})",
+            r.heading.degrees(),
+            r.inliers,
+            r.score,
+            r.dz_m,
+            r.dp,
+            r.overlap_fraction,
+            r.rejection.map(|x| x.as_str())
+        )
+    }
+}
+
+/// The outcome of one query (see `decod::matching::QueryResult`).
+#[pyclass(name = "QueryResult", module = "decod_rs._core", frozen)]
+pub(crate) struct PyQueryResult {
+    inner: QueryResult,
+}
+
+#[pymethods]
+impl PyQueryResult {
+    /// Query submap stamp, seconds.
+    #[getter]
+    fn query_stamp(&self) -> f64 {
+        self.inner.query_stamp
+    }
+    /// Query origin in its submap frame, `(3,)` metres.
+    #[getter]
+    fn query_origin<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.query_origin_in_submap)
+    }
+    /// Query axis in its submap frame, `(3,)`.
+    #[getter]
+    fn query_axis<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.query_axis_in_submap)
+    }
+    /// Database index of the best candidate, or None.
+    #[getter]
+    fn candidate_index(&self) -> Option<usize> {
+        self.inner.candidate_index
+    }
+    /// Best candidate's submap stamp (NaN if none).
+    #[getter]
+    fn candidate_stamp(&self) -> f64 {
+        self.inner.candidate_stamp
+    }
+    /// Best candidate's origin in its submap frame, `(3,)` metres.
+    #[getter]
+    fn candidate_origin<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.candidate_origin_in_submap)
+    }
+    /// Best candidate's axis in its submap frame, `(3,)`.
+    #[getter]
+    fn candidate_axis<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.inner.candidate_axis_in_submap)
+    }
+    /// The best pair, or None without eligible candidates.
+    #[getter]
+    fn pair(&self) -> Option<PyPairResult> {
+        self.inner.pair.clone().map(|inner| PyPairResult { inner })
+    }
+    /// Relative heading, degrees (0 or 180).
+    #[getter]
+    fn heading_deg(&self) -> f64 {
+        self.inner.heading().degrees()
+    }
+    /// Inliers K of the best pair (0 if none).
+    #[getter]
+    fn inliers(&self) -> usize {
+        self.inner.pair.as_ref().map_or(0, |p| p.inliers)
+    }
+    /// Score S of the best pair (0 if none).
+    #[getter]
+    fn score(&self) -> f64 {
+        self.inner.pair.as_ref().map_or(0.0, |p| p.score)
+    }
+    /// Axial offset of the best pair, metres.
+    #[getter]
+    fn dz_m(&self) -> f64 {
+        self.inner.pair.as_ref().map_or(0.0, |p| p.dz_m)
+    }
+    /// Circumferential offset of the best pair, fraction of the circumference.
+    #[getter]
+    fn dp(&self) -> f64 {
+        self.inner.pair.as_ref().map_or(0.0, |p| p.dp)
+    }
+    /// Accepted as a loop closure.
+    #[getter]
+    fn accepted(&self) -> bool {
+        self.inner.accepted
+    }
+    /// Why not accepted (`ineligible`, `no_candidates`, `insufficient_overlap`,
+    /// `too_few_inliers`, `not_unique`), or None.
+    #[getter]
+    fn rejection(&self) -> Option<&'static str> {
+        self.inner.rejection.map(|r| r.as_str())
+    }
+    /// Best score among the other eligible candidates (uniqueness reference).
+    #[getter]
+    fn runner_up_score(&self) -> f64 {
+        self.inner.runner_up_score
+    }
+    /// Inliers of the runner-up.
+    #[getter]
+    fn runner_up_inliers(&self) -> usize {
+        self.inner.runner_up_inliers
+    }
+    /// Database index of the runner-up, or None.
+    #[getter]
+    fn runner_up_index(&self) -> Option<usize> {
+        self.inner.runner_up_index
+    }
+    /// Number of eligible candidates compared.
+    #[getter]
+    fn eligible(&self) -> usize {
+        self.inner.eligible
+    }
+    /// The result as JSON.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.inner)
+            .map_err(|e| to_py_err(DecodError::invalid("QueryResult", e.to_string())))
+    }
+    fn __repr__(&self) -> String {
+        let r = &self.inner;
+        format!(
+            "QueryResult(query_stamp={:.3}, candidate={:?}, accepted={}, K={}, S={:.3}, runner_up_S={:.3}, rejection={:?})",
+            r.query_stamp,
+            r.candidate_index,
+            r.accepted,
+            self.inliers(),
+            self.score(),
+            r.runner_up_score,
+            r.rejection.map(|x| x.as_str())
+        )
+    }
+}
+
+/// Compares two landmarks under both headings (GIL released).
+#[pyfunction]
+fn compare(
+    py: Python<'_>,
+    query: PyRef<'_, PyLandmark>,
+    candidate: PyRef<'_, PyLandmark>,
+    config_json: &str,
+) -> PyResult<PyPairResult> {
+    let cfg = config_from_json(config_json)?;
+    let (q, c) = (query.inner.clone(), candidate.inner.clone());
+    let inner = detached(py, move || matching::compare(&q, &c, &cfg))?;
+    Ok(PyPairResult { inner })
+}
+
+/// A landmark database (see `decod::matching::LandmarkDatabase`).
+#[pyclass(name = "LandmarkDatabase", module = "decod_rs._core")]
+pub(crate) struct PyLandmarkDatabase {
+    inner: LandmarkDatabase,
+}
+
+#[pymethods]
+impl PyLandmarkDatabase {
+    #[new]
+    fn py_new(config_json: &str) -> PyResult<Self> {
+        Ok(Self {
+            inner: LandmarkDatabase::new(&config_from_json(config_json)?),
+        })
+    }
+    /// Prepares and stores a landmark; returns its index.
+    fn add(&mut self, py: Python<'_>, landmark: PyRef<'_, PyLandmark>) -> PyResult<usize> {
+        let l = (*landmark.inner).clone();
+        let db = &mut self.inner;
+        detached(py, move || db.add(l))
+    }
+    /// Prepares (in parallel) and stores landmarks; returns their indices.
+    fn extend(
+        &mut self,
+        py: Python<'_>,
+        landmarks: Vec<PyRef<'_, PyLandmark>>,
+    ) -> PyResult<Vec<usize>> {
+        let ls: Vec<Landmark> = landmarks_of(&landmarks)
+            .iter()
+            .map(|l| (**l).clone())
+            .collect();
+        let db = &mut self.inner;
+        detached(py, move || db.extend(ls))
+    }
+    /// Best eligible candidate for `query`.
+    fn query(
+        &self,
+        py: Python<'_>,
+        query: PyRef<'_, PyLandmark>,
+        config_json: &str,
+    ) -> PyResult<PyQueryResult> {
+        let cfg = config_from_json(config_json)?;
+        let q = query.inner.clone();
+        let db = &self.inner;
+        let inner = detached(py, move || db.query(&q, &cfg))?;
+        Ok(PyQueryResult { inner })
+    }
+    /// Every query against the database (batch mode), queries in parallel.
+    fn query_batch(
+        &self,
+        py: Python<'_>,
+        queries: Vec<PyRef<'_, PyLandmark>>,
+        config_json: &str,
+    ) -> PyResult<Vec<PyQueryResult>> {
+        let cfg = config_from_json(config_json)?;
+        let qs: Vec<Landmark> = landmarks_of(&queries)
+            .iter()
+            .map(|l| (**l).clone())
+            .collect();
+        let db = &self.inner;
+        let results = detached(py, move || db.query_batch(&qs, &cfg))?;
+        Ok(results
+            .into_iter()
+            .map(|inner| PyQueryResult { inner })
+            .collect())
+    }
+    /// Online mode: query against all stored landmarks, then add; returns (result, index).
+    fn query_online(
+        &mut self,
+        py: Python<'_>,
+        landmark: PyRef<'_, PyLandmark>,
+        config_json: &str,
+    ) -> PyResult<(PyQueryResult, usize)> {
+        let cfg = config_from_json(config_json)?;
+        let l = (*landmark.inner).clone();
+        let db = &mut self.inner;
+        let (inner, index) = detached(py, move || db.query_online(l, &cfg))?;
+        Ok((PyQueryResult { inner }, index))
+    }
+    /// The stored landmark at `index`.
+    fn landmark(&self, index: usize) -> PyResult<PyLandmark> {
+        self.inner
+            .get(index)
+            .map(|l| PyLandmark::new(l.clone()))
+            .ok_or_else(|| {
+                pyo3::exceptions::PyIndexError::new_err(format!(
+                    "landmark index {index} out of range (database holds {})",
+                    self.inner.len()
+                ))
+            })
+    }
+    /// Writes the database as versioned JSON.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let db = &self.inner;
+        detached(py, move || db.save(&path))
+    }
+    /// Reads a database; entries are prepared with `config_json` or the saved config.
+    #[staticmethod]
+    #[pyo3(signature = (path, config_json = None))]
+    fn load(py: Python<'_>, path: PathBuf, config_json: Option<&str>) -> PyResult<Self> {
+        let cfg = config_json.map(config_from_json).transpose()?;
+        let inner = detached(py, move || LandmarkDatabase::load(&path, cfg.as_ref()))?;
+        Ok(Self { inner })
+    }
+    /// The `[matching]` config the entries are prepared with, as JSON.
+    fn config_json(&self) -> PyResult<String> {
+        serde_json::to_string(self.inner.config())
+            .map_err(|e| to_py_err(DecodError::config("matching", e.to_string())))
+    }
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+}
+
+/// A synthetic observation of joint `joint_seed` of pipe `pipe_seed` (see
+/// `decod::matching::synthetic`): `grid` is "tunnel" or "pipe"; `random_view` draws noise,
+/// misalignment and contour errors from `view_seed`; the rest are explicit overrides.
+#[pyfunction]
+#[pyo3(signature = (
+    pipe_seed, joint_seed, *, stamp = 0.0, reversed = false, view_seed = 0, grid = "tunnel",
+    random_view = true, shift_z_m = None, missing_arc = None, noise_m = None
+))]
+#[allow(clippy::too_many_arguments)]
+fn synthetic_landmark(
+    pipe_seed: u64,
+    joint_seed: u64,
+    stamp: f64,
+    reversed: bool,
+    view_seed: u64,
+    grid: &str,
+    random_view: bool,
+    shift_z_m: Option<f64>,
+    missing_arc: Option<(f64, f64)>,
+    noise_m: Option<f64>,
+) -> PyResult<PyLandmark> {
+    let g = match grid {
+        "tunnel" => Grid::tunnel(),
+        "pipe" => Grid::pipe(),
+        other => {
+            return Err(to_py_err(DecodError::invalid(
+                "grid",
+                format!("{other:?} is not one of [\"tunnel\", \"pipe\"]"),
+            )));
+        }
+    };
+    let mut rng = Rng::new(view_seed);
+    let mut obs = if random_view {
+        Observation::random(&g, stamp, reversed, &mut rng)
+    } else {
+        Observation {
+            stamp,
+            reversed,
+            ..Observation::default()
+        }
+    };
+    if let Some(s) = shift_z_m {
+        obs.shift_z_m = s;
+    }
+    obs.missing_arc = missing_arc;
+    if let Some(n) = noise_m {
+        obs.noise_m = n;
+    }
+    let joint = JointSurface::new(g, SurfaceParams::for_grid(&g), pipe_seed, joint_seed);
+    Ok(PyLandmark::new(
+        joint.observe(&obs, view_seed.wrapping_add(1)),
+    ))
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyPairResult>()?;
+    m.add_class::<PyQueryResult>()?;
+    m.add_class::<PyLandmarkDatabase>()?;
+    m.add_function(wrap_pyfunction!(compare, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic_landmark, m)?)?;
     Ok(())
 }

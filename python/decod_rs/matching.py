@@ -1,0 +1,149 @@
+"""Landmark matching (paper §III-B, §III-C): pairwise comparison and the landmark database.
+
+The work runs in Rust with the GIL released; results are the native ``PairResult`` and
+``QueryResult`` classes (attributes, numpy ``(3,)`` vectors). ``config`` everywhere accepts a
+resolved :class:`~decod_rs.config.Config` (whole or its ``matching`` section), a preset name
+(``"tunnel"``, ``"pipe"``), a plain dict of the ``matching`` section, or ``None`` (tunnel).
+
+Example::
+
+    db = LandmarkDatabase(config="pipe")
+    db.extend(outbound_landmarks)
+    for result in db.query_batch(return_landmarks):
+        if result.accepted:
+            print(result.query_stamp, result.candidate_stamp, result.inliers, result.dz_m)
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from decod_rs import _core
+from decod_rs._core import Landmark, PairResult, QueryResult
+from decod_rs.config import Config, load_config
+
+MatchingConfigLike = Config | str | dict[str, Any] | None
+
+
+def matching_config_json(config: MatchingConfigLike = None) -> str:
+    """The ``matching`` section of ``config`` as the JSON the native layer reads."""
+    if config is None or isinstance(config, str):
+        config = load_config(preset=config or "tunnel")
+    values = config.to_dict() if isinstance(config, Config) else dict(config)
+    if "matching" in values:
+        values = values["matching"]
+    return json.dumps(values)
+
+
+def compare(query: Landmark, candidate: Landmark, config: MatchingConfigLike = None) -> PairResult:
+    """Compare two landmarks under both headings (0° and 180°); the better one is returned."""
+    return _core.compare(query, candidate, matching_config_json(config))
+
+
+def synthetic_landmark(
+    pipe_seed: int,
+    joint_seed: int,
+    *,
+    stamp: float = 0.0,
+    reversed: bool = False,
+    view_seed: int = 0,
+    grid: str = "tunnel",
+    random_view: bool = True,
+    shift_z_m: float | None = None,
+    missing_arc: tuple[float, float] | None = None,
+    noise_m: float | None = None,
+) -> Landmark:
+    """A realistic synthetic observation of one joint (tests, examples, benchmarks).
+
+    Joints of one ``pipe_seed`` share the groove geometry; equal seeds give the identical
+    joint (aliasing). ``missing_arc=(start_p, fraction)`` hides part of the circumference.
+    """
+    return _core.synthetic_landmark(
+        pipe_seed,
+        joint_seed,
+        stamp=stamp,
+        reversed=reversed,
+        view_seed=view_seed,
+        grid=grid,
+        random_view=random_view,
+        shift_z_m=shift_z_m,
+        missing_arc=missing_arc,
+        noise_m=noise_m,
+    )
+
+
+class LandmarkDatabase:
+    """Landmarks prepared once on insertion; queried with eligibility, both headings, rayon.
+
+    A query is accepted iff the best candidate has ``K >= min_inliers`` and its score beats
+    the runner-up's by ``uniqueness_ratio`` (aliasing guard).
+    """
+
+    def __init__(self, config: MatchingConfigLike = None) -> None:
+        self._config = matching_config_json(config)
+        self._db = _core.LandmarkDatabase(self._config)
+
+    @classmethod
+    def _wrap(cls, native: _core.LandmarkDatabase, config_json: str) -> LandmarkDatabase:
+        db = cls.__new__(cls)
+        db._config = config_json
+        db._db = native
+        return db
+
+    def _json(self, config: MatchingConfigLike) -> str:
+        return self._config if config is None else matching_config_json(config)
+
+    def add(self, landmark: Landmark) -> int:
+        """Prepare and store ``landmark``; returns its index."""
+        return self._db.add(landmark)
+
+    def extend(self, landmarks: Iterable[Landmark]) -> list[int]:
+        """Prepare (in parallel) and store ``landmarks``; returns their indices."""
+        return self._db.extend(list(landmarks))
+
+    def query(self, query: Landmark, config: MatchingConfigLike = None) -> QueryResult:
+        """The best eligible candidate for ``query`` (database config unless given)."""
+        return self._db.query(query, self._json(config))
+
+    def query_batch(
+        self, queries: Iterable[Landmark], config: MatchingConfigLike = None
+    ) -> list[QueryResult]:
+        """Batch mode: every query against the (outbound) database."""
+        return self._db.query_batch(list(queries), self._json(config))
+
+    def query_online(
+        self, landmark: Landmark, config: MatchingConfigLike = None
+    ) -> tuple[QueryResult, int]:
+        """Online mode: query against all older landmarks, then add; (result, new index)."""
+        return self._db.query_online(landmark, self._json(config))
+
+    def landmark(self, index: int) -> Landmark:
+        """The stored landmark at ``index``."""
+        return self._db.landmark(index)
+
+    def save(self, path: str | Path) -> None:
+        """Write the database (versioned JSON)."""
+        self._db.save(str(path))
+
+    @classmethod
+    def load(cls, path: str | Path, config: MatchingConfigLike = None) -> LandmarkDatabase:
+        """Read a saved database; ``DatabaseError`` on another format version."""
+        config_json = None if config is None else matching_config_json(config)
+        native = _core.LandmarkDatabase.load(str(path), config_json)
+        return cls._wrap(native, native.config_json())
+
+    def __len__(self) -> int:
+        return len(self._db)
+
+
+__all__ = [
+    "LandmarkDatabase",
+    "PairResult",
+    "QueryResult",
+    "compare",
+    "matching_config_json",
+    "synthetic_landmark",
+]

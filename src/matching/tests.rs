@@ -1,0 +1,424 @@
+//! End-to-end matcher tests on synthetic descriptors (`synthetic.rs`). Tolerances: K is
+//! compared with the config's `min_inliers` (the acceptance threshold itself); offsets with
+//! half a cell (keypoints sit on cell centres).
+
+use super::synthetic::{Grid, JointSurface, Observation, Rng, SurfaceParams};
+use super::*;
+use crate::config::DecodConfig;
+
+fn cfg() -> MatchingConfig {
+    DecodConfig::tunnel().matching
+}
+
+fn joint(pipe: u64, id: u64) -> JointSurface {
+    let g = Grid::tunnel();
+    JointSurface::new(g, SurfaceParams::for_grid(&g), pipe, id)
+}
+
+fn later(stamp: f64) -> Observation {
+    Observation {
+        stamp,
+        ..Observation::default()
+    }
+}
+
+fn assert_match(a: &Landmark, b: &Landmark, heading: Heading) -> PairResult {
+    let r = compare(a, b, &cfg()).unwrap();
+    assert_eq!(r.heading, heading, "{r:?}");
+    assert!(r.inliers >= cfg().min_inliers, "{r:?}");
+    assert!(r.rejection.is_none(), "{r:?}");
+    r
+}
+
+#[test]
+fn same_boundary_twice_with_different_noise() {
+    let j = joint(1, 1);
+    let r = assert_match(
+        &j.observe(&Observation::default(), 1),
+        &j.observe(&later(100.0), 2),
+        Heading::Forward,
+    );
+    assert!(r.dz_m.abs() < 0.15 && r.dp.abs() < 1.0 / 256.0, "{r:?}");
+}
+
+#[test]
+fn half_the_circumference_missing() {
+    let j = joint(1, 2);
+    let half = Observation {
+        // The lower half (p = 0 is the gravity side): sediment or water in a pipe.
+        missing_arc: Some((0.75, 0.5)),
+        ..later(100.0)
+    };
+    let r = assert_match(
+        &j.observe(&Observation::default(), 1),
+        &j.observe(&half, 2),
+        Heading::Forward,
+    );
+    assert!(r.overlap_fraction < 0.5, "{r:?}");
+}
+
+#[test]
+fn one_cell_axial_misalignment() {
+    let j = joint(1, 3);
+    let cell = Grid::tunnel().cell_z_m;
+    let shifted = Observation {
+        shift_z_m: cell,
+        ..later(100.0)
+    };
+    let r = assert_match(
+        &j.observe(&Observation::default(), 1),
+        &j.observe(&shifted, 2),
+        Heading::Forward,
+    );
+    // The query's feature at z lies at z - cell in the shifted view (its origin moved +cell).
+    assert!((r.dz_m + cell).abs() < 0.5 * cell, "{r:?}");
+}
+
+#[test]
+fn contour_tilt_and_centring_error() {
+    let j = joint(1, 4);
+    let distorted = Observation {
+        tilt: [0.02, -0.015],
+        centring_m: [0.05, -0.04],
+        radius_error_m: 0.03,
+        ellipticity_m: 0.02,
+        ..later(100.0)
+    };
+    assert_match(
+        &j.observe(&Observation::default(), 1),
+        &j.observe(&distorted, 2),
+        Heading::Forward,
+    );
+}
+
+#[test]
+fn reversed_heading() {
+    let j = joint(1, 5);
+    let cell = Grid::tunnel().cell_z_m;
+    let back = Observation {
+        reversed: true,
+        shift_z_m: cell,
+        ..later(100.0)
+    };
+    let r = assert_match(
+        &j.observe(&Observation::default(), 1),
+        &j.observe(&back, 2),
+        Heading::Reversed,
+    );
+    assert!((r.dz_m + cell).abs() < 0.5 * cell, "{r:?}");
+}
+
+#[test]
+fn different_boundaries_of_the_same_pipe_do_not_match() {
+    for k in 0..5 {
+        let a = joint(1, 10 + k).observe(&Observation::default(), 1);
+        let b = joint(1, 20 + k).observe(&later(100.0), 2);
+        let r = compare(&a, &b, &cfg()).unwrap();
+        assert!(r.inliers < cfg().min_inliers, "{r:?}");
+        assert_eq!(r.rejection, Some(Rejection::TooFewInliers));
+    }
+}
+
+/// A database of `n` joints seen outbound; `ids[k]` picks the joint seed of entry `k`.
+fn corridor(ids: &[u64], rng: &mut Rng) -> LandmarkDatabase {
+    let g = Grid::tunnel();
+    let mut db = LandmarkDatabase::new(&cfg());
+    for (k, &id) in ids.iter().enumerate() {
+        let obs = Observation::random(&g, 10.0 * k as f64, false, rng);
+        db.add(joint(3, id).observe(&obs, 1000 + k as u64)).unwrap();
+    }
+    db
+}
+
+#[test]
+fn aliased_corridor_yields_no_accepted_loop() {
+    let mut rng = Rng::new(11);
+    // Five identical precast joints (same geometry, different noise and views).
+    let db = corridor(&[7; 5], &mut rng);
+    for t in 0..4 {
+        let obs = Observation::random(&Grid::tunnel(), 1000.0 + t as f64, t % 2 == 1, &mut rng);
+        let q = joint(3, 7).observe(&obs, 50 + t);
+        let r = db.query(&q, &cfg()).unwrap();
+        let ratio = r.pair.as_ref().unwrap().score / r.runner_up_score;
+        eprintln!(
+            "aliased: best/runner-up = {ratio:.3} (K {} vs {})",
+            r.pair.as_ref().unwrap().inliers,
+            r.runner_up_inliers
+        );
+        assert!(!r.accepted, "{r:?}");
+        assert_eq!(r.rejection, Some(Rejection::NotUnique));
+    }
+}
+
+#[test]
+fn corridor_of_similar_joints_is_matched() {
+    let mut rng = Rng::new(12);
+    let ids = [30, 31, 32, 33, 34, 35];
+    let db = corridor(&ids, &mut rng);
+    for (k, &id) in ids.iter().enumerate() {
+        let obs = Observation::random(&Grid::tunnel(), 1000.0 + k as f64, k % 2 == 0, &mut rng);
+        let r = db
+            .query(&joint(3, id).observe(&obs, 70 + k as u64), &cfg())
+            .unwrap();
+        let p = r.pair.as_ref().unwrap();
+        eprintln!(
+            "similar: best/runner-up = {:.3} (K {} vs {})",
+            p.score / r.runner_up_score.max(1e-9),
+            p.inliers,
+            r.runner_up_inliers
+        );
+        assert!(r.accepted, "{r:?}");
+        assert_eq!(r.candidate_index, Some(k));
+        assert_eq!(
+            r.heading(),
+            if k % 2 == 0 {
+                Heading::Reversed
+            } else {
+                Heading::Forward
+            }
+        );
+    }
+}
+
+#[test]
+fn serial_and_parallel_queries_agree() {
+    let mut rng = Rng::new(13);
+    let db = corridor(&[40, 41, 42, 43, 44, 45, 46, 47], &mut rng);
+    for k in 0..4u64 {
+        let obs = Observation::random(&Grid::tunnel(), 500.0, k % 2 == 1, &mut rng);
+        let q = joint(3, 40 + 2 * k).observe(&obs, 90 + k);
+        assert_eq!(
+            db.query(&q, &cfg()).unwrap(),
+            db.query_serial(&q, &cfg()).unwrap()
+        );
+    }
+}
+
+#[test]
+fn eligibility_excludes_close_and_overlapping_submaps() {
+    let j = joint(1, 6);
+    let mut db = LandmarkDatabase::new(&cfg());
+    db.add(j.observe(&Observation::default(), 1)).unwrap();
+    let close = db.query(&j.observe(&later(10.0), 2), &cfg()).unwrap();
+    assert_eq!(close.rejection, Some(Rejection::Ineligible));
+    assert_eq!(close.eligible, 0);
+    let mut shared = j.observe(&later(100.0), 3);
+    shared.scan_stamps.push(0.5); // a scan of the database submap
+    assert_eq!(db.query(&shared, &cfg()).unwrap().eligible, 0);
+    let far = db.query(&j.observe(&later(100.0), 4), &cfg()).unwrap();
+    assert!(far.accepted, "{far:?}");
+}
+
+#[test]
+fn gemm_patch_distances_agree_with_brute_force() {
+    let c = cfg();
+    let shape = patches::PatchShape::new(&c);
+    let j = joint(2, 1);
+    let a = j.observe(
+        &Observation {
+            holes: 6,
+            ..Observation::default()
+        },
+        1,
+    );
+    let b = joint(2, 2).observe(
+        &Observation {
+            holes: 6,
+            missing_arc: Some((0.1, 0.3)),
+            ..later(100.0)
+        },
+        2,
+    );
+    let mode = normalise::Normalisation::from_config(&c);
+    let patches_of = |l: &Landmark| {
+        let d = &l.descriptor;
+        let field = normalise::normalised_field(d, mode, false);
+        let kps = keypoints::detect(&field, &d.observed, d.rows, d.cols, &c, |r, col| {
+            shape.coverage(&d.observed, (d.rows, d.cols), r, col)
+        });
+        kps.iter()
+            .map(|k| shape.extract(&field, &d.observed, (d.rows, d.cols), k))
+            .collect::<Vec<_>>()
+    };
+    let (pa, pb) = (patches_of(&a), patches_of(&b));
+    let cand = patches::CandidatePatches::new(&shape, &pb);
+    for flipped in [false, true] {
+        let own = patches::CandidatePatches::new(&shape, &pa);
+        let query = patches::QueryPatches::from_candidate(&shape, &own, flipped);
+        let dist = patches::distances(&shape, &query, &cand, c.min_patch_overlap_fraction);
+        let mut finite = 0;
+        for (i, qa) in pa.iter().enumerate() {
+            let qa = if flipped {
+                (
+                    qa.0.iter().rev().copied().collect(),
+                    qa.1.iter().rev().copied().collect(),
+                )
+            } else {
+                qa.clone()
+            };
+            for (jj, qb) in pb.iter().enumerate() {
+                let want =
+                    patches::distance_reference(&shape, &qa, qb, c.min_patch_overlap_fraction);
+                let got = f64::from(dist[(i, jj)]);
+                if want.is_finite() {
+                    finite += 1;
+                    // z-scored patches: distances ~1; f32 GEMM over ~900 terms: ~1e-5.
+                    assert!((got - want).abs() < 1e-4 * (1.0 + want), "{got} vs {want}");
+                } else {
+                    assert!(got.is_infinite(), "{got} vs inf");
+                }
+            }
+        }
+        assert!(finite > 100);
+    }
+}
+
+#[test]
+fn database_round_trips_and_rejects_other_versions() {
+    let mut rng = Rng::new(14);
+    let db = corridor(&[50, 51, 52], &mut rng);
+    let dir = std::env::temp_dir().join(format!("decod-db-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("db.json");
+    db.save(&path).unwrap();
+    let back = LandmarkDatabase::load(&path, None).unwrap();
+    assert_eq!(back.len(), 3);
+    let q = joint(3, 51).observe(
+        &Observation::random(&Grid::tunnel(), 900.0, true, &mut rng),
+        5,
+    );
+    assert_eq!(
+        db.query(&q, &cfg()).unwrap(),
+        back.query(&q, &cfg()).unwrap()
+    );
+    let text = std::fs::read_to_string(&path).unwrap();
+    let bumped = text.replacen("\"version\":1", "\"version\":99", 1);
+    std::fs::write(&path, bumped).unwrap();
+    let err = LandmarkDatabase::load(&path, None).unwrap_err();
+    assert!(matches!(err, DecodError::Database { .. }), "{err}");
+    assert!(err.to_string().contains("version 99"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Precision/recall of the whole query path on `n` joints of one pipe, each seen outbound
+/// (database) and on the return traversal (queries, reversed heading), random views.
+pub(crate) fn precision_recall(c: &MatchingConfig, n: u64, seed: u64) -> (f64, f64, usize) {
+    let g = Grid::tunnel();
+    let mut rng = Rng::new(seed);
+    let mut db = LandmarkDatabase::new(c);
+    let outbound: Vec<Landmark> = (0..n)
+        .map(|k| {
+            joint(seed, k).observe(&Observation::random(&g, 8.0 * k as f64, false, &mut rng), k)
+        })
+        .collect();
+    db.extend(outbound).unwrap();
+    let queries: Vec<Landmark> = (0..n)
+        .map(|k| {
+            let obs = Observation::random(&g, 2000.0 - 8.0 * k as f64, true, &mut rng);
+            joint(seed, k).observe(&obs, 10_000 + k)
+        })
+        .collect();
+    let results = db.query_batch(&queries, c).unwrap();
+    let accepted = results.iter().filter(|r| r.accepted).count();
+    let correct = results
+        .iter()
+        .enumerate()
+        .filter(|(k, r)| r.accepted && r.candidate_index == Some(*k))
+        .count();
+    let precision = if accepted > 0 {
+        correct as f64 / accepted as f64
+    } else {
+        1.0
+    };
+    (precision, correct as f64 / n as f64, accepted)
+}
+
+#[test]
+fn precision_and_recall_on_fifty_joints() {
+    let (p, r, a) = precision_recall(&cfg(), 50, 21);
+    eprintln!("paper config: precision {p:.3} recall {r:.3} accepted {a}");
+    // Distinct joints with realistic nuisances: every accepted loop must be right and
+    // nearly all found (recall below 0.9 would mean the detector or verification regressed).
+    assert!(p == 1.0, "precision {p}");
+    assert!(r >= 0.9, "recall {r}");
+}
+
+#[test]
+fn ablations_run_and_verification_keeps_precision() {
+    // The paper's ablations on the 50-joint set; figures go to the issue note. Without
+    // verification every query is accepted (no K check, no uniqueness), so its precision
+    // cannot exceed the verified matcher's.
+    let (p_full, r_full, a_full) = precision_recall(&cfg(), 50, 22);
+    let mut figures = vec![format!("recall {r_full:.3} accepted {a_full}")];
+    for (name, tweak) in [
+        (
+            "k15",
+            (|c: &mut MatchingConfig| c.min_inliers = 15) as fn(&mut MatchingConfig),
+        ),
+        ("no_verification", |c| c.verification = false),
+        ("scale_only", |c| c.normalisation = "scale_only".into()),
+        ("sign_only", |c| c.sign_only = true),
+    ] {
+        let mut c = cfg();
+        tweak(&mut c);
+        let (p, r, a) = precision_recall(&c, 50, 22);
+        figures.push(format!(
+            "{name}: precision {p:.3} recall {r:.3} accepted {a}"
+        ));
+        if name == "no_verification" {
+            assert_eq!(a, 50);
+            assert!(p <= p_full);
+        }
+    }
+    eprintln!("paper config precision {p_full:.3}; {}", figures.join("; "));
+}
+
+#[test]
+fn runner_up_exclusion_lets_two_views_of_one_joint_through() {
+    let j = joint(1, 8);
+    let mut db = LandmarkDatabase::new(&cfg());
+    db.add(j.observe(&Observation::default(), 1)).unwrap();
+    db.add(j.observe(&later(8.0), 2)).unwrap(); // the same joint, next submap
+    let q = j.observe(&later(500.0), 3);
+    assert_eq!(
+        db.query(&q, &cfg()).unwrap().rejection,
+        Some(Rejection::NotUnique)
+    );
+    let mut c = cfg();
+    c.runner_up_exclusion_s = 10.0;
+    let r = db.query(&q, &c).unwrap();
+    assert!(r.accepted, "{r:?}");
+    assert_eq!(r.runner_up_index, None);
+}
+
+#[test]
+fn pipe_grid_matches_and_degenerate_input_is_handled() {
+    let g = Grid::pipe();
+    let j = JointSurface::new(g, SurfaceParams::for_grid(&g), 4, 1);
+    let mut rng = Rng::new(3);
+    let a = j.observe(&Observation::random(&g, 0.0, false, &mut rng), 1);
+    let b = j.observe(&Observation::random(&g, 100.0, true, &mut rng), 2);
+    let pipe = DecodConfig::pipe().matching;
+    let r = compare(&a, &b, &pipe).unwrap();
+    assert_eq!(r.heading, Heading::Reversed);
+    assert!(r.inliers >= pipe.min_inliers, "{r:?}");
+    // Nothing observed: no keypoints, a clean rejection, no panic.
+    let mut blind = b.clone();
+    blind
+        .descriptor
+        .observed
+        .iter_mut()
+        .for_each(|o| *o = false);
+    blind.descriptor.offsets_m.iter_mut().for_each(|v| *v = 0.0);
+    let r = compare(&a, &blind, &pipe).unwrap();
+    assert_eq!(r.rejection, Some(Rejection::InsufficientOverlap));
+    // Another grid: a named error.
+    let mut small = b.clone();
+    small.descriptor.rows = 8;
+    small.descriptor.offsets_m.truncate(8 * 256);
+    small.descriptor.observed.truncate(8 * 256);
+    assert!(matches!(
+        compare(&a, &small, &pipe),
+        Err(DecodError::InvalidInput { .. })
+    ));
+}

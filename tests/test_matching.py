@@ -1,0 +1,143 @@
+"""Matching from Python: typed results, the issue's scenarios, database round trip.
+
+Descriptors come from the Rust synthetic generator (``decod_rs.synthetic_landmark``), seeded;
+thresholds are the config's own (``min_inliers``), so a regression in the matcher fails here.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import decod_rs
+from decod_rs import LandmarkDatabase, compare, load_config, synthetic_landmark
+
+CFG = load_config(preset="tunnel")
+MIN_INLIERS = CFG.matching.min_inliers
+
+
+def test_same_joint_from_the_reversed_heading_is_matched() -> None:
+    a = synthetic_landmark(1, 5, stamp=0.0, view_seed=1)
+    b = synthetic_landmark(1, 5, stamp=500.0, view_seed=2, reversed=True)
+    r = compare(a, b, CFG)
+    assert isinstance(r, decod_rs.PairResult)
+    assert r.heading_deg == 180.0
+    assert r.inliers >= MIN_INLIERS
+    assert r.rejection is None
+    assert r.score == pytest.approx(2 * r.inliers / (r.query_keypoints + r.candidate_keypoints))
+
+
+def test_half_missing_and_misaligned_views_match() -> None:
+    a = synthetic_landmark(1, 6, view_seed=1, random_view=False)
+    half = synthetic_landmark(
+        1, 6, stamp=100.0, view_seed=2, random_view=False, missing_arc=(0.75, 0.5)
+    )
+    assert compare(a, half, "tunnel").inliers >= MIN_INLIERS
+    shifted = synthetic_landmark(1, 6, stamp=100.0, view_seed=3, random_view=False, shift_z_m=0.3)
+    r = compare(a, shifted)
+    assert r.inliers >= MIN_INLIERS
+    # Origin moved +1 cell (0.3 m): the query's features lie 0.3 m earlier in the candidate.
+    assert r.dz_m == pytest.approx(-0.3, abs=0.15)
+
+
+def test_different_joints_are_not_matched() -> None:
+    a = synthetic_landmark(2, 1, view_seed=1)
+    b = synthetic_landmark(2, 2, stamp=100.0, view_seed=2)
+    r = compare(a, b, CFG)
+    assert r.inliers < MIN_INLIERS
+    assert r.rejection == "too_few_inliers"
+
+
+def test_batch_query_finds_the_right_joints_and_carries_factor_data() -> None:
+    db = LandmarkDatabase(CFG)
+    assert db.extend(
+        synthetic_landmark(3, k, stamp=8.0 * k, view_seed=k) for k in range(8)
+    ) == list(range(8))
+    assert len(db) == 8
+    queries = [
+        synthetic_landmark(3, k, stamp=900.0 - k, view_seed=100 + k, reversed=True)
+        for k in range(8)
+    ]
+    results = db.query_batch(queries)
+    for k, r in enumerate(results):
+        assert r.accepted, r
+        assert r.candidate_index == k
+        assert r.heading_deg == 180.0
+        assert r.candidate_stamp == pytest.approx(8.0 * k)
+        assert r.query_origin.shape == (3,) and r.candidate_axis.shape == (3,)
+        assert np.isclose(np.linalg.norm(r.query_axis), 1.0)
+        assert r.runner_up_score < r.score
+        assert json.loads(r.to_json())["accepted"] is True
+
+
+def test_aliased_joints_are_not_accepted() -> None:
+    db = LandmarkDatabase("tunnel")
+    db.extend(synthetic_landmark(4, 9, stamp=10.0 * k, view_seed=k) for k in range(4))
+    r = db.query(synthetic_landmark(4, 9, stamp=999.0, view_seed=77))
+    assert r.inliers >= MIN_INLIERS  # it does look like a loop...
+    assert not r.accepted  # ...but not a unique one
+    assert r.rejection == "not_unique"
+
+
+def test_online_mode_respects_eligibility() -> None:
+    db = LandmarkDatabase()
+    first, i0 = db.query_online(synthetic_landmark(5, 1, stamp=0.0, view_seed=1))
+    assert (first.rejection, i0) == ("no_candidates", 0)
+    close, _ = db.query_online(synthetic_landmark(5, 1, stamp=5.0, view_seed=2))
+    assert close.rejection == "ineligible" and close.eligible == 0
+    revisit, _ = db.query_online(synthetic_landmark(5, 1, stamp=300.0, view_seed=3))
+    assert not revisit.accepted  # two views of the joint in the database: not unique
+    assert revisit.eligible == 2
+
+
+def test_database_save_load_round_trip_and_version_error(tmp_path: Path) -> None:
+    db = LandmarkDatabase("tunnel")
+    db.extend(synthetic_landmark(6, k, stamp=10.0 * k, view_seed=k) for k in range(3))
+    path = tmp_path / "db.json"
+    db.save(path)
+    back = LandmarkDatabase.load(path)
+    assert len(back) == 3
+    q = synthetic_landmark(6, 1, stamp=500.0, view_seed=9, reversed=True)
+    a, b = db.query(q), back.query(q)
+    assert (a.candidate_index, a.inliers, a.score, a.accepted) == (
+        b.candidate_index,
+        b.inliers,
+        b.score,
+        b.accepted,
+    )
+    np.testing.assert_array_equal(back.landmark(1).descriptor, db.landmark(1).descriptor)
+    pipe = LandmarkDatabase("pipe")
+    pipe.add(synthetic_landmark(6, 1, grid="pipe"))
+    pipe.save(tmp_path / "pipe.json")
+    # A loaded database keeps the config it was saved with (pipe, not the tunnel default).
+    saved = json.loads(LandmarkDatabase.load(tmp_path / "pipe.json")._db.config_json())
+    assert saved == load_config(preset="pipe").to_dict()["matching"]
+    doc = json.loads(path.read_text())
+    doc["version"] = 99
+    path.write_text(json.dumps(doc))
+    with pytest.raises(decod_rs.DatabaseError, match="version 99"):
+        LandmarkDatabase.load(path)
+    with pytest.raises(FileNotFoundError):
+        LandmarkDatabase.load(tmp_path / "missing.json")
+
+
+def test_ablation_switches_and_bad_config() -> None:
+    a = synthetic_landmark(7, 1, view_seed=1)
+    b = synthetic_landmark(7, 1, stamp=100.0, view_seed=2)
+    base = CFG.to_dict()["matching"]
+    for overrides in (
+        {"verification": False},
+        {"normalisation": "scale_only"},
+        {"sign_only": True},
+    ):
+        r = compare(a, b, {**base, **overrides})
+        assert r.inliers > 0
+    no_verif = compare(a, b, {**base, "verification": False})
+    assert no_verif.inliers == no_verif.matches  # every tentative match counts
+    with pytest.raises(decod_rs.ConfigError, match="normalisation"):
+        compare(a, b, {**base, "normalisation": "bogus"})
+    with pytest.raises(decod_rs.ConfigError):
+        compare(a, b, {**base, "no_such_key": 1})
