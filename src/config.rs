@@ -181,6 +181,13 @@ pub struct MatchingConfig {
     /// traversal). 0 (paper): every other eligible candidate competes. Keep it below the time
     /// the robot needs to travel one joint spacing, or identical joints stop competing.
     pub runner_up_exclusion_s: f64,
+    /// Two database landmarks whose origins lie closer than this in the odometry frame,
+    /// from submaps less than `min_time_separation_s` apart, are views of one physical
+    /// boundary; `decod run` keeps only the best observed one, so a true loop is not
+    /// rejected as "not unique" against another view of itself. Local odometry over a few
+    /// seconds is accurate to centimetres; the value stays well below the boundary spacing
+    /// (>= 1.2 m in tunnels, >= 1 m between pipe joints), so distinct boundaries never merge.
+    pub duplicate_radius_m: f64,
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
@@ -298,6 +305,7 @@ impl DecodConfig {
                 max_shift_z_cells: 3,
                 max_shift_p_cells: 16,
                 runner_up_exclusion_s: 0.0,
+                duplicate_radius_m: 0.4,
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -338,6 +346,7 @@ impl DecodConfig {
         c.matching.max_shift_z_cells = 3;
         c.matching.max_shift_p_cells = 16;
         c.matching.runner_up_exclusion_s = 0.0;
+        c.matching.duplicate_radius_m = 0.1;
         c.matching.uniqueness_ratio = 2.0;
         c
     }
@@ -408,6 +417,7 @@ impl DecodConfig {
                 self.matching.min_patch_overlap_fraction,
             ),
             ("graph.huber_k", self.graph.huber_k),
+            ("matching.duplicate_radius_m", self.matching.duplicate_radius_m),
         ];
         for (name, value) in positive {
             if !(value.is_finite() && value > 0.0) {

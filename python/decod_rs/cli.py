@@ -16,6 +16,7 @@ COMMANDS = [
     "inspect",
     "convert",
     "demo",
+    "run",
 ]
 
 

@@ -1,0 +1,70 @@
+"""``decod run LOG``: DeCOD on a log; writes the contract's files (DESIGN.md) into ``--out``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from decod_rs.config import PRESETS
+from decod_rs.pipeline import MODES, RunSummary, run_log
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="detect, match and close loops on a log; write corrected.tum and a report",
+        description="Run DeCOD on a ROS 2 MCAP log (.mcap or rosbag2 directory; ROS 1 bags "
+        "through `decod convert`) and write odometry.tum, corrected.tum, loops.csv, "
+        "landmarks.csv, report.json and plots into --out.",
+    )
+    p.add_argument("log", type=Path, help=".mcap file or rosbag2 directory")
+    p.add_argument("--preset", choices=PRESETS, default="tunnel")
+    p.add_argument("--points-topic", help="PointCloud2 / Livox CustomMsg topic (default: unique)")
+    odom = p.add_mutually_exclusive_group()
+    odom.add_argument("--odom-topic", help="odometry topic (default: the unique one)")
+    odom.add_argument("--odom-tum", type=Path, help="odometry as a TUM file instead of a topic")
+    p.add_argument("--imu-topic", help="IMU topic for gravity (default: the sensor's -z)")
+    p.add_argument("--config", type=Path, help="TOML file overriding preset parameters")
+    p.add_argument(
+        "--mode",
+        choices=MODES,
+        default="auto",
+        help="batch: outbound database, return queries; online: every landmark queries all "
+        "older ones; auto: batch if the run comes back, else online",
+    )
+    p.add_argument("--no-loops", action="store_true", help="report matches, add no factor")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.set_defaults(func=run)
+
+
+def print_summary(summary: RunSummary) -> None:
+    t = summary.timings_s
+    stages = ", ".join(f"{k} {v:.2f} s" for k, v in t.items())
+    print(f"scans          {summary.scans} ({summary.log_duration_s:.1f} s of log)")
+    print(f"submaps        {summary.submaps}, landmarks {summary.landmarks}")
+    rej = ", ".join(f"{k} {v}" for k, v in sorted(summary.rejections.items())) or "none"
+    print(f"rejected       {rej}")
+    print(
+        f"matching       {summary.mode} mode, {summary.queries} queries, {summary.accepted} accepted"
+    )
+    print(f"time           {stages}; {summary.realtime_factor:.0f}x real time")
+    print(f"output         {summary.out_dir}")
+
+
+def run(args: argparse.Namespace) -> int:
+    summary = run_log(
+        args.log,
+        args.out,
+        preset=args.preset,
+        config_path=args.config,
+        points_topic=args.points_topic,
+        odom_topic=args.odom_topic,
+        odom_tum=args.odom_tum,
+        imu_topic=args.imu_topic,
+        mode=args.mode,
+        loops=not args.no_loops,
+        plots=not args.no_plots,
+    )
+    print_summary(summary)
+    return 0

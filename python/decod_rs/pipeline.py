@@ -1,0 +1,438 @@
+"""``decod run``: a log in, a corrected trajectory and an honest report out (paper Alg. 1).
+
+Stages, each timed in ``report.json``:
+
+1. **extract** - the Rust ``LogProcessor`` streams scans from the log, builds submaps and
+   extracts landmarks a few submaps at a time (memory bounded by the submaps in flight);
+2. **match** - outbound landmarks form the database, return landmarks query it (batch, the
+   paper's protocol), or every landmark queries all older ones (online);
+3. **optimise** - accepted pairs become 5-DoF factors in the GTSAM graph over the submap
+   anchors; every scan gets a corrected pose;
+4. **write** - the files of the contract (DESIGN.md) and the plots.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs import _core
+from decod_rs._core import Landmark, QueryResult
+from decod_rs.config import Config, load_config
+from decod_rs.graph import LoopConstraint, correct_trajectory
+from decod_rs.matching import LandmarkDatabase
+from decod_rs.progress import Progress
+from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
+from decod_rs.tum import write_tum
+
+FloatArray = NDArray[np.float64]
+
+MODES = ("auto", "batch", "online")
+
+#: In ``auto`` mode the log is split at the turnaround (the scan farthest from the start) when
+#: the return leg covers at least this fraction of the outbound distance; otherwise every
+#: landmark queries all older ones (online).
+MIN_RETURN_FRACTION = 0.25
+
+__all__ = ["MODES", "RunSummary", "run_log"]
+
+
+@dataclass
+class RunSummary:
+    """What ``run_log`` did: counts, per-stage seconds, and the output directory."""
+
+    out_dir: Path
+    scans: int
+    submaps: int
+    landmarks: int
+    queries: int
+    accepted: int
+    mode: str
+    split_stamp: float | None
+    log_duration_s: float
+    timings_s: dict[str, float] = field(default_factory=dict)
+    rejections: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def realtime_factor(self) -> float:
+        total = sum(self.timings_s.values())
+        return self.log_duration_s / total if total > 0 else float("inf")
+
+
+@dataclass
+class _Extracted:
+    anchor_stamps: list[float] = field(default_factory=list)
+    anchor_poses: list[FloatArray] = field(default_factory=list)
+    landmarks: list[Landmark] = field(default_factory=list)
+    rejections: dict[str, int] = field(default_factory=dict)
+    rejection_messages: list[str] = field(default_factory=list)
+
+
+def _extract(
+    log: Path,
+    cfg: Config,
+    points_topic: str | None,
+    odom_topic: str | None,
+    odom_tum: Path | None,
+    imu_topic: str | None,
+    progress: bool,
+) -> tuple[_core.LogProcessor, _Extracted]:
+    processor = _core.LogProcessor(
+        str(log),
+        json.dumps(cfg.to_dict()),
+        points_topic=points_topic,
+        odom_topic=odom_topic,
+        odom_tum=None if odom_tum is None else str(odom_tum),
+        imu_topic=imu_topic,
+    )
+    bar = Progress("extract", processor.total_scans_hint or None, enabled=progress)
+    out = _Extracted()
+    read = 0
+    while (batch := processor.step()) is not None:
+        for submap in batch:
+            out.anchor_stamps.append(submap.anchor_stamp)
+            out.anchor_poses.append(submap.world_from_anchor)
+            out.landmarks.extend(submap.result.landmarks)
+            for rejection in submap.result.rejections:
+                out.rejections[rejection.kind] = out.rejections.get(rejection.kind, 0) + 1
+                out.rejection_messages.append(str(rejection))
+        bar.advance(processor.scans_read - read)
+        read = processor.scans_read
+    bar.close()
+    return processor, out
+
+
+def _split_stamp(stamps: FloatArray, poses: FloatArray) -> float | None:
+    """The turnaround stamp of an out-and-back run, or None if there is no real return."""
+    positions = poses[:, :3, 3]
+    reach = np.linalg.norm(positions - positions[0], axis=1)
+    far = int(np.argmax(reach))
+    back = float(np.linalg.norm(positions[-1] - positions[far]))
+    if reach[far] <= 0 or back < MIN_RETURN_FRACTION * reach[far]:
+        return None
+    return float(stamps[far])
+
+
+class _Duplicates:
+    """Recognises views of one physical boundary from nearby submaps (paper §IV-A: the
+    database holds boundaries, not views). Positions use the odometry, which is accurate
+    over the few seconds between such submaps."""
+
+    def __init__(self, anchors: dict[float, FloatArray], cfg: Config) -> None:
+        self.anchors = anchors
+        self.radius = float(cfg.matching.duplicate_radius_m)
+        self.window = float(cfg.matching.min_time_separation_s)
+        self.kept: list[tuple[float, FloatArray]] = []
+
+    def world(self, lm: Landmark) -> FloatArray:
+        pose = self.anchors[lm.submap_stamp]
+        return np.asarray(pose[:3, :3] @ lm.origin + pose[:3, 3], dtype=np.float64)
+
+    def admit(self, lm: Landmark) -> bool:
+        """True (and remembered) unless ``lm`` repeats an admitted boundary."""
+        here = self.world(lm)
+        for stamp, there in self.kept:
+            near_in_time = abs(stamp - lm.submap_stamp) < self.window
+            if near_in_time and np.linalg.norm(here - there) < self.radius:
+                return False
+        self.kept.append((lm.submap_stamp, here))
+        return True
+
+
+def _observed(lm: Landmark) -> int:
+    return int(lm.mask.sum())
+
+
+def _match(
+    landmarks: list[Landmark],
+    anchors: dict[float, FloatArray],
+    cfg: Config,
+    mode: str,
+    split: float | None,
+) -> tuple[list[QueryResult], str, int]:
+    """Queries and their top-1 results, the mode used, and the database size."""
+    db = LandmarkDatabase(cfg)
+    duplicates = _Duplicates(anchors, cfg)
+    if mode == "auto":
+        mode = "batch" if split is not None else "online"
+    if mode == "batch":
+        if split is None:
+            raise ValueError(
+                "--mode batch: the trajectory has no return leg to query with (use --mode online)"
+            )
+        outbound = [lm for lm in landmarks if lm.submap_stamp <= split]
+        # Best-observed view of each boundary first, so it is the one kept.
+        db.extend(
+            lm for lm in sorted(outbound, key=lambda lm: -_observed(lm)) if duplicates.admit(lm)
+        )
+        queries = [lm for lm in landmarks if lm.submap_stamp > split]
+        return db.query_batch(queries), mode, len(db)
+    results = []
+    for lm in sorted(landmarks, key=lambda lm: lm.submap_stamp):
+        results.append(db.query(lm))
+        if duplicates.admit(lm):
+            db.add(lm)
+    return results, mode, len(db)
+
+
+def _effective_db_origin(result: QueryResult) -> FloatArray:
+    """The candidate's origin moved by the verified axial offset, so both origins name the
+    same physical plane (``PairResult.dz_m`` is along the axis in the query's heading)."""
+    sign = 1.0 if abs(result.heading_deg) < 90.0 else -1.0
+    return np.asarray(result.candidate_origin, dtype=np.float64) + (
+        result.dz_m * sign * np.asarray(result.candidate_axis, dtype=np.float64)
+    )
+
+
+def _loop_table(results: list[QueryResult]) -> LoopTable:
+    n = len(results)
+    nan3 = np.full(3, np.nan)
+
+    def vec(r: QueryResult, name: str) -> FloatArray:
+        return (
+            np.asarray(getattr(r, name), dtype=np.float64)
+            if r.candidate_index is not None
+            else nan3
+        )
+
+    return LoopTable(
+        query_stamp=np.array([r.query_stamp for r in results], dtype=np.float64),
+        db_stamp=np.array(
+            [r.candidate_stamp if r.candidate_index is not None else np.nan for r in results],
+            dtype=np.float64,
+        ),
+        query_origin=np.array([r.query_origin for r in results], dtype=np.float64).reshape(n, 3),
+        query_axis=np.array([r.query_axis for r in results], dtype=np.float64).reshape(n, 3),
+        db_origin=np.array([vec(r, "candidate_origin") for r in results]).reshape(n, 3),
+        db_axis=np.array([vec(r, "candidate_axis") for r in results]).reshape(n, 3),
+        inliers=np.array([r.inliers for r in results], dtype=np.int64),
+        score=np.array([r.score for r in results], dtype=np.float64),
+        accepted=np.array([r.accepted for r in results], dtype=bool),
+        extra={
+            "heading_deg": [f"{r.heading_deg:.0f}" for r in results],
+            "dz_m": [f"{r.dz_m:.6f}" for r in results],
+            "runner_up_score": [f"{r.runner_up_score:.6f}" for r in results],
+            "eligible_candidates": [str(r.eligible) for r in results],
+            "reason": [r.rejection or "" for r in results],
+        },
+    )
+
+
+def _constraints(results: list[QueryResult], anchor_stamps: FloatArray) -> list[LoopConstraint]:
+    def index(stamp: float) -> int:
+        return int(np.argmin(np.abs(anchor_stamps - stamp)))
+
+    return [
+        LoopConstraint(
+            query_index=index(r.query_stamp),
+            db_index=index(r.candidate_stamp),
+            query_origin=np.asarray(r.query_origin, dtype=np.float64),
+            query_axis=np.asarray(r.query_axis, dtype=np.float64),
+            db_origin=_effective_db_origin(r),
+            db_axis=np.asarray(r.candidate_axis, dtype=np.float64),
+            inliers=r.inliers,
+            score=r.score,
+        )
+        for r in results
+        if r.accepted
+    ]
+
+
+def _chainage(
+    landmarks: list[Landmark],
+    anchor_stamps: FloatArray,
+    scan_stamps: FloatArray,
+    corrected: FloatArray,
+) -> FloatArray:
+    """Distance from the start along the corrected outbound path to each landmark: the
+    landmark's world position is projected on the path up to its farthest point."""
+    positions = corrected[:, :3, 3]
+    far = int(np.argmax(np.linalg.norm(positions - positions[0], axis=1)))
+    path = positions[: far + 1]
+    arclength = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    out = np.empty(len(landmarks))
+    for k, lm in enumerate(landmarks):
+        pose = corrected[int(np.argmin(np.abs(scan_stamps - lm.submap_stamp)))]
+        world = pose[:3, :3] @ lm.origin + pose[:3, 3]
+        out[k] = arclength[int(np.argmin(np.linalg.norm(path - world, axis=1)))]
+    return out
+
+
+def run_log(
+    log: str | Path,
+    out_dir: str | Path,
+    *,
+    preset: str = "tunnel",
+    config_path: str | Path | None = None,
+    points_topic: str | None = None,
+    odom_topic: str | None = None,
+    odom_tum: str | Path | None = None,
+    imu_topic: str | None = None,
+    mode: str = "auto",
+    loops: bool = True,
+    plots: bool = True,
+    progress: bool = True,
+) -> RunSummary:
+    """Run DeCOD on ``log`` and write the contract's files into ``out_dir``.
+
+    ``loops=False`` disables loop closure (the output trajectory is then the odometry); the
+    matching still runs and is reported.
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode: {mode!r} is not one of {MODES}")
+    log = Path(log)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = load_config(config_path, preset)
+    timings: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    processor, ex = _extract(
+        log,
+        cfg,
+        points_topic,
+        odom_topic,
+        None if odom_tum is None else Path(odom_tum),
+        imu_topic,
+        progress,
+    )
+    timings["extract"] = time.perf_counter() - t0
+    scan_stamps = np.asarray(processor.scan_stamps(), dtype=np.float64)
+    scan_odom = np.asarray(processor.scan_poses(), dtype=np.float64)
+    if scan_stamps.size == 0:
+        raise ValueError(f"{log}: no scan could be paired with odometry")
+    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
+
+    t0 = time.perf_counter()
+    split = _split_stamp(scan_stamps, scan_odom)
+    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
+    results, used_mode, db_size = _match(ex.landmarks, anchors, cfg, mode, split)
+    timings["match"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    constraints = _constraints(results, anchor_stamps) if loops else []
+    correction = correct_trajectory(scan_stamps, scan_odom, anchor_stamps, constraints, cfg.graph)
+    timings["optimise"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    write_tum(out / "odometry.tum", scan_stamps, scan_odom)
+    write_tum(out / "corrected.tum", scan_stamps, correction.poses)
+    write_loops_csv(out / "loops.csv", _loop_table(results))
+    lms = ex.landmarks
+    write_landmarks_csv(
+        out / "landmarks.csv",
+        LandmarkTable(
+            stamp=np.array([lm.submap_stamp for lm in lms], dtype=np.float64),
+            origin=np.array([lm.origin for lm in lms], dtype=np.float64).reshape(-1, 3),
+            axis=np.array([lm.axis for lm in lms], dtype=np.float64).reshape(-1, 3),
+            radius_m=np.array([lm.radius_m for lm in lms], dtype=np.float64),
+            chainage_m=_chainage(lms, anchor_stamps, scan_stamps, correction.poses),
+        ),
+    )
+    timings["write"] = time.perf_counter() - t0
+    if plots:
+        t0 = time.perf_counter()
+        _plots(out, scan_stamps, scan_odom, correction.poses, results, lms)
+        timings["plots"] = time.perf_counter() - t0
+
+    accepted = sum(r.accepted for r in results)
+    reasons: dict[str, int] = {}
+    for r in results:
+        if not r.accepted:
+            key = r.rejection or "unknown"
+            reasons[key] = reasons.get(key, 0) + 1
+    summary = RunSummary(
+        out_dir=out,
+        scans=int(scan_stamps.size),
+        submaps=len(ex.anchor_stamps),
+        landmarks=len(lms),
+        queries=len(results),
+        accepted=int(accepted),
+        mode=used_mode,
+        split_stamp=split,
+        log_duration_s=float(scan_stamps[-1] - scan_stamps[0]),
+        timings_s=timings,
+        rejections=ex.rejections,
+    )
+    report: dict[str, Any] = {
+        "log": str(log),
+        "points_topic": processor.points_topic,
+        "preset": preset,
+        "mode": used_mode,
+        "split_stamp": split,
+        "loops_enabled": loops,
+        "counts": {
+            "scans": summary.scans,
+            "skipped_outside_odometry": len(processor.skipped_outside_odometry),
+            "submaps": summary.submaps,
+            "landmarks": summary.landmarks,
+            "database": db_size,
+            "queries": summary.queries,
+            "accepted": summary.accepted,
+            "loop_factors": len(constraints),
+        },
+        "extraction_rejections": ex.rejections,
+        "extraction_rejection_messages": ex.rejection_messages[:200],
+        "query_rejections": reasons,
+        "optimisation": {
+            "nodes": int(correction.node_stamps.size),
+            "iterations": correction.graph.iterations,
+            "initial_error": correction.graph.initial_error,
+            "final_error": correction.graph.final_error,
+            "loop_weights": [float(w) for w in correction.graph.loop_weights],
+        },
+        "timings_s": timings,
+        "log_duration_s": summary.log_duration_s,
+        "realtime_factor": summary.realtime_factor,
+        "config": cfg.to_dict(),
+        "versions": {
+            "decod": _core.__version__,
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+        },
+    }
+    (out / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
+    return summary
+
+
+def _plots(
+    out: Path,
+    stamps: FloatArray,
+    odom: FloatArray,
+    corrected: FloatArray,
+    results: list[QueryResult],
+    landmarks: list[Landmark],
+) -> None:
+    from decod_rs.plots import plot_descriptor_pair, plot_trajectories
+
+    accepted = [r for r in results if r.accepted]
+    plot_trajectories(
+        out / "trajectory.png",
+        stamps,
+        odom,
+        corrected,
+        [(r.query_stamp, r.candidate_stamp) for r in accepted],
+    )
+    by_key = {(lm.submap_stamp, tuple(np.round(lm.origin, 6))): lm for lm in landmarks}
+    # The strongest few accepted pairs: enough to inspect, not a file per loop.
+    for k, r in enumerate(sorted(accepted, key=lambda r: -r.score)[:4]):
+        q = by_key.get((r.query_stamp, tuple(np.round(r.query_origin, 6))))
+        d = by_key.get((r.candidate_stamp, tuple(np.round(r.candidate_origin, 6))))
+        if q is None or d is None:
+            continue
+        plot_descriptor_pair(
+            out / f"descriptors_pair{k}.png",
+            q.descriptor,
+            q.mask,
+            d.descriptor,
+            d.mask,
+            title=f"query {r.query_stamp:.1f} s vs db {r.candidate_stamp:.1f} s: "
+            f"K={r.inliers}, S={r.score:.2f}, heading {r.heading_deg} deg",
+        )
