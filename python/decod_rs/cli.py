@@ -12,6 +12,7 @@ from decod_rs import __version__
 # Module names under decod_rs.commands, in the order `decod --help` lists them.
 COMMANDS = [
     "dump_config",
+    "simulate",
 ]
 
 

@@ -63,6 +63,11 @@ def _roughness(
         x0 = x_min
     dtheta_m = 2.0 * np.pi * radius / n_theta
     values = smooth_noise(rng, (n_u, n_theta), (corr_m / du, corr_m / dtheta_m), sigma)
+    # Every cross-section keeps the nominal mean radius: roughness only redistributes material
+    # around the circumference, so the mean axial profile carries the nominal shape alone
+    # (measured: with the row mean left in, the hume profile of one joint told it from the
+    # others 88 % of the time at 1.5 mm range noise; without, the 2D maps are needed).
+    values -= values.mean(axis=1, keepdims=True)
     return Grid2D(x0, du, -np.pi, 2.0 * np.pi / n_theta, values, True, period is not None)
 
 
@@ -121,7 +126,7 @@ def build_hume(
         "groove_width_var_m": 0.002,
         "groove_centre_var_m": 0.0015,
         "chips_per_joint": 2.0,
-        "chip_depth_m": [0.001, 0.003],
+        "chip_depth_m": [0.001, 0.002],
         "lip_eccentricity_m": 0.0015,
         "roughness_m": 0.001,
         "roughness_corr_m": 0.012,

@@ -163,4 +163,11 @@ class Scene:
         u = np.linspace(-half_width_m, half_width_m, n_u)
         th = theta_grid(n_theta)
         uu, tt = np.meshgrid(u, th, indexing="ij")
-        return self.wall_dr(self.joints_x_m[joint] + uu, tt)
+        xx = self.joints_x_m[joint] + uu
+        dr = self.wall_dr(xx, tt)
+        if self.arches is not None:
+            a = self.arches.nearest(xx.ravel()).reshape(xx.shape)
+            in_band = np.abs(xx - self.arches.centre(a, tt)) <= self.arches.half_width
+            arch_dr = self.arches.radius(a, tt) - self.radius_m
+            dr = np.where(in_band, np.minimum(dr, arch_dr), dr)
+        return dr
