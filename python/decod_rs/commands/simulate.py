@@ -62,13 +62,17 @@ def run(args: argparse.Namespace) -> int:
     )
     mb = res.log_size_bytes / 1e6
     print(f"scene          {res.scene} (sensor {res.sensor}, seed {args.seed})")
-    print(f"scans          {res.n_scans} at 10 Hz, {res.n_points} points "
-          f"({res.n_points / max(res.n_scans, 1):.0f} per scan), {res.n_imu} IMU samples")
+    print(
+        f"scans          {res.n_scans} at 10 Hz, {res.n_points} points "
+        f"({res.n_points / max(res.n_scans, 1):.0f} per scan), {res.n_imu} IMU samples"
+    )
     print(f"duration       {res.duration_s:.1f} s of log")
     print(f"joints         {res.n_joints} true boundaries in {res.joints_json}")
     print(f"odometry       endpoint error {res.endpoint_error_m:.3f} m")
     print(f"log            {res.log_dir} ({mb:.1f} MB)")
-    print(f"time           {res.time_total_s:.1f} s total, "
-          f"{1000 * res.time_per_scan_s:.1f} ms per scan (ray casting), "
-          f"{res.time_write_s:.1f} s writing")
+    print(
+        f"time           {res.time_total_s:.1f} s total, "
+        f"{1000 * res.time_per_scan_s:.1f} ms per scan (ray casting), "
+        f"{res.time_write_s:.1f} s writing"
+    )
     return 0

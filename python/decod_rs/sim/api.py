@@ -94,7 +94,7 @@ class Simulation:
         )
         n_scans = int(np.floor(self.traj.duration_s / SCAN_PERIOD_S)) + 1
         self.stamps_ns = T0_NS + SCAN_PERIOD_NS * np.arange(n_scans, dtype=np.int64)
-        self.t_s = np.arange(n_scans) * SCAN_PERIOD_S
+        self.t_s: F64 = np.arange(n_scans, dtype=np.float64) * SCAN_PERIOD_S
         self.gt_poses = self.traj.poses(self.t_s)
         self.drift_request_m = resolve_drift(drift)
         self.drift: DriftResult = drift_odometry(
@@ -361,8 +361,13 @@ def simulate(
         for k in range(sim.n_scans):
             stamp = int(sim.stamps_ns[k])
             while i_imu < imu_ns.size and imu_ns[i_imu] <= stamp:
-                w.imu(int(imu_ns[i_imu]), sim.imu.gyro_radps[i_imu], sim.imu.accel_mps2[i_imu],
-                      var_g, var_a)
+                w.imu(
+                    int(imu_ns[i_imu]),
+                    sim.imu.gyro_radps[i_imu],
+                    sim.imu.accel_mps2[i_imu],
+                    var_g,
+                    var_a,
+                )
                 i_imu += 1
             t0 = time.perf_counter()
             pts, inten = sim.scan(k)
@@ -372,8 +377,13 @@ def simulate(
             w.odom(stamp, sim.drift.odom_poses[k], lin[k], ang[k])
             bar.advance()
         while i_imu < imu_ns.size:
-            w.imu(int(imu_ns[i_imu]), sim.imu.gyro_radps[i_imu], sim.imu.accel_mps2[i_imu],
-                  var_g, var_a)
+            w.imu(
+                int(imu_ns[i_imu]),
+                sim.imu.gyro_radps[i_imu],
+                sim.imu.accel_mps2[i_imu],
+                var_g,
+                var_a,
+            )
             i_imu += 1
     bar.close()
     gt_tum = out / "gt.tum"

@@ -76,9 +76,7 @@ def smooth_noise(
     white = rng.standard_normal(shape)
     k0 = np.fft.fftfreq(shape[0])[:, None]
     k1 = np.fft.rfftfreq(shape[1])[None, :]
-    kernel = np.exp(
-        -2.0 * np.pi**2 * ((k0 * corr_cells[0]) ** 2 + (k1 * corr_cells[1]) ** 2)
-    )
+    kernel = np.exp(-2.0 * np.pi**2 * ((k0 * corr_cells[0]) ** 2 + (k1 * corr_cells[1]) ** 2))
     field = np.fft.irfft2(np.fft.rfft2(white) * kernel, s=shape)
     field -= field.mean()
     std = float(field.std())

@@ -109,9 +109,7 @@ def _stack(tables: list[np.ndarray], n_u: int, n_t: int) -> np.ndarray:
     return np.stack(tables).astype(np.float32)
 
 
-def build_hume(
-    rng: np.random.Generator, x_max: float, distinct: float, identical: bool
-) -> Scene:
+def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identical: bool) -> Scene:
     """Precast concrete pipe: 0.6 m ID, 2.43 m segments, annular joint grooves (~4 mm deep,
     ~16 mm wide, varying around), eccentric lips (~1.5 mm), chipped edges, occasional lateral
     connections, ~1 mm wall roughness, 1.5 mm range noise."""

@@ -63,7 +63,13 @@ SENSORS: dict[str, SensorSpec] = {
     ),
     # Ouster OS1-64-like: 45 deg vertical FoV, 512 columns (32,768 rays).
     "spin64": SensorSpec(
-        "spin64", "spinning", 360.0, 45.0, beams=64, h_res_deg=360.0 / 512, min_range_m=0.3,
+        "spin64",
+        "spinning",
+        360.0,
+        45.0,
+        beams=64,
+        h_res_deg=360.0 / 512,
+        min_range_m=0.3,
         max_range_m=120.0,
     ),
 }
@@ -142,7 +148,9 @@ def measure(
         unit = vec / rng_true[:, None]
     pts = origin + unit[keep] * rng_meas[keep, None]
     refl = reflectivity[hits.kind[keep]]
-    inten = refl * (0.25 + 0.75 * hits.cos_incidence[keep]) * (
-        1.0 + 0.05 * rng.standard_normal(int(keep.sum()))
+    inten = (
+        refl
+        * (0.25 + 0.75 * hits.cos_incidence[keep])
+        * (1.0 + 0.05 * rng.standard_normal(int(keep.sum())))
     )
     return pts, np.clip(inten, 0.0, 255.0).astype(np.float32), keep

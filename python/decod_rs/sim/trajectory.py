@@ -21,19 +21,25 @@ from decod_rs.sim.fields import F64
 def rot_x(a: F64) -> F64:
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+    return np.stack(
+        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
+    )
 
 
 def rot_y(a: F64) -> F64:
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+    return np.stack(
+        [np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2
+    )
 
 
 def rot_z(a: F64) -> F64:
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
 
 
 def quat_xyzw(rot: F64) -> F64:
@@ -42,10 +48,37 @@ def quat_xyzw(rot: F64) -> F64:
     tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
     cands = np.stack(
         [
-            np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1], 1 + tr], -1),
-            np.stack([1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2], m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0], m[:, 2, 1] - m[:, 1, 2]], -1),
-            np.stack([m[:, 0, 1] + m[:, 1, 0], 1 + m[:, 1, 1] - m[:, 0, 0] - m[:, 2, 2], m[:, 1, 2] + m[:, 2, 1], m[:, 0, 2] - m[:, 2, 0]], -1),
-            np.stack([m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1], 1 + m[:, 2, 2] - m[:, 0, 0] - m[:, 1, 1], m[:, 1, 0] - m[:, 0, 1]], -1),
+            np.stack(
+                [m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1], 1 + tr],
+                -1,
+            ),
+            np.stack(
+                [
+                    1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2],
+                    m[:, 0, 1] + m[:, 1, 0],
+                    m[:, 0, 2] + m[:, 2, 0],
+                    m[:, 2, 1] - m[:, 1, 2],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[:, 0, 1] + m[:, 1, 0],
+                    1 + m[:, 1, 1] - m[:, 0, 0] - m[:, 2, 2],
+                    m[:, 1, 2] + m[:, 2, 1],
+                    m[:, 0, 2] - m[:, 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[:, 0, 2] + m[:, 2, 0],
+                    m[:, 1, 2] + m[:, 2, 1],
+                    1 + m[:, 2, 2] - m[:, 0, 0] - m[:, 1, 1],
+                    m[:, 1, 0] - m[:, 0, 1],
+                ],
+                -1,
+            ),
         ],
         1,
     )
@@ -59,7 +92,9 @@ def so3_log(rot: F64) -> F64:
     """Rotation vectors ``(N, 3)`` of rotation matrices ``(N, 3, 3)`` (angles below pi)."""
     cos_a = np.clip((np.trace(rot, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     ang = np.arccos(cos_a)
-    w = np.stack([rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]], -1)
+    w = np.stack(
+        [rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]], -1
+    )
     sin_a = np.sin(ang)
     scale = np.where(sin_a > 1e-9, ang / (2.0 * np.where(sin_a > 1e-9, sin_a, 1.0)), 0.5)
     return w * scale[:, None]
@@ -130,7 +165,9 @@ class Trajectory:
 
         def up(t: F64) -> F64:
             tt = np.minimum(t, tr)
-            return 0.5 * sp * (tt - tr / np.pi * np.sin(np.pi * tt / tr)) + sp * np.maximum(t - tr, 0.0)
+            return 0.5 * sp * (tt - tr / np.pi * np.sin(np.pi * tt / tr)) + sp * np.maximum(
+                t - tr, 0.0
+            )
 
         return np.where(tau <= 0.5 * tl, up(tau), self.spec.length_m - up(tl - tau))
 

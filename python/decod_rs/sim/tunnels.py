@@ -41,9 +41,7 @@ def _floor_texture(
     return Grid2D(x_min, du, -4.0, du, values, wrap_v=False)
 
 
-def build_shield(
-    rng: np.random.Generator, x_max: float, distinct: float, identical: bool
-) -> Scene:
+def build_shield(rng: np.random.Generator, x_max: float, distinct: float, identical: bool) -> Scene:
     """Shield tunnel: 6 m ID, 1.5 m rings of 6 segments (a 22.5 deg key), ring seams
     (~15 mm groove) with lipping (per-segment radial offsets, zero-mean per ring), staggered
     longitudinal seams (ring rotation alternates), 16 bolt pockets on each side of every ring
@@ -161,7 +159,14 @@ def build_shield(
         return out
 
     rough = _roughness(
-        rng, x_min, x_max, 0.03, 768, p["roughness_corr_m"], radius, p["roughness_m"],
+        rng,
+        x_min,
+        x_max,
+        0.03,
+        768,
+        p["roughness_corr_m"],
+        radius,
+        p["roughness_m"],
         ring if identical else None,
     )
     if identical:
@@ -219,8 +224,8 @@ def build_horseshoe(
 
     def one_arch(g: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         a, b = g.normal(0.0, p["arch_tilt_m"] * distinct, 2)
-        shift = a * np.cos(th) + b * np.sin(th) + harmonic_series(
-            g, th, p["arch_wave_m"] * distinct, 4
+        shift = (
+            a * np.cos(th) + b * np.sin(th) + harmonic_series(g, th, p["arch_wave_m"] * distinct, 4)
         )
         r_in = radius + harmonic_series(g, th, p["arch_deform_m"] * distinct, 5)
         return r_in.astype(np.float32), shift.astype(np.float32)
@@ -239,12 +244,26 @@ def build_horseshoe(
     )
     period = spacing if identical else None
     coarse = _roughness(
-        rng, x_min, x_max, 0.1, 256, p["rock_overbreak_corr_m"], radius,
-        p["rock_overbreak_m"], period,
+        rng,
+        x_min,
+        x_max,
+        0.1,
+        256,
+        p["rock_overbreak_corr_m"],
+        radius,
+        p["rock_overbreak_m"],
+        period,
     )
     fine = _roughness(
-        rng, x_min, x_max, 0.025, 640, p["rock_roughness_corr_m"], radius,
-        p["rock_roughness_m"], period,
+        rng,
+        x_min,
+        x_max,
+        0.025,
+        640,
+        p["rock_roughness_corr_m"],
+        radius,
+        p["rock_roughness_m"],
+        period,
     )
     if identical:
         coarse = Grid2D(joints[0], coarse.du, coarse.v0, coarse.dv, coarse.values, True, True)
