@@ -34,6 +34,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--distinctiveness", type=float, default=None, help="1 = default")
     p.add_argument("--identical-joints", action="store_true", help="an aliased corridor")
     p.add_argument("--speed", type=float, default=None, help="m/s")
+    p.add_argument(
+        "--odometry",
+        choices=["drift", "kiss-icp"],
+        default="drift",
+        help="odometry in /odom and odom.tum: the drift model (default) or KISS-ICP on the scans",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing DIR/log")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -57,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         identical_joints=args.identical_joints,
         speed_mps=args.speed,
         sensor_overrides=overrides or None,
+        odometry=args.odometry,
         progress=not args.quiet,
         overwrite=args.force,
     )
@@ -74,5 +81,6 @@ def run(args: argparse.Namespace) -> int:
         f"time           {res.time_total_s:.1f} s total, "
         f"{1000 * res.time_per_scan_s:.1f} ms per scan (ray casting), "
         f"{res.time_write_s:.1f} s writing"
+        + (f", {res.time_odometry_s:.1f} s odometry" if res.time_odometry_s else "")
     )
     return 0
