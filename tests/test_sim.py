@@ -325,3 +325,47 @@ def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     out = capsys.readouterr().out
     assert "endpoint error 0.200 m" in out and "ms per scan" in out
     assert (tmp_path / "joints.json").is_file() and (tmp_path / "log" / "metadata.yaml").is_file()
+
+
+def test_livox_custom_msg_and_ros1_bag(tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    res = simulate(
+        "pe",
+        tmp_path,
+        seed=1,
+        length_m=1.5,
+        speed_mps=0.5,
+        livox=True,
+        ros1=True,
+        sensor_overrides={"rays_per_scan": 200},
+        progress=False,
+    )
+    first_cloud = None
+    for path in (res.log_dir, res.out_dir / "log.bag"):
+        with AnyReader([path]) as reader:
+            counts = {c.topic: c.msgcount for c in reader.connections}
+            assert counts == {
+                "/points": res.n_scans,
+                "/odom": res.n_scans,
+                "/imu": res.n_imu,
+                "/livox/lidar": res.n_scans,
+            }
+            conns = [c for c in reader.connections if c.topic in ("/points", "/livox/lidar")]
+            msgs = {}
+            for conn, _, raw in reader.messages(connections=conns):
+                msgs.setdefault(conn.topic, reader.deserialize(raw, conn.msgtype))
+                if len(msgs) == 2:
+                    break
+        cloud = np.frombuffer(msgs["/points"].data, dtype="<f4").reshape(-1, 4)
+        custom = msgs["/livox/lidar"]
+        xyz = np.array([[p.x, p.y, p.z] for p in custom.points], dtype=np.float32)
+        # Same points in both messages and in both bag formats.
+        assert custom.point_num == cloud.shape[0] == xyz.shape[0]
+        assert np.array_equal(xyz, cloud[:, :3])
+        assert custom.timebase == msgs["/points"].header.stamp.sec * 10**9 + (
+            msgs["/points"].header.stamp.nanosec
+        )
+        if first_cloud is None:
+            first_cloud = cloud
+        assert np.array_equal(first_cloud, cloud)

@@ -40,6 +40,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="drift",
         help="odometry in /odom and odom.tum: the drift model (default) or KISS-ICP on the scans",
     )
+    p.add_argument(
+        "--livox", action="store_true", help="also /livox/lidar (livox_ros_driver2 CustomMsg)"
+    )
+    p.add_argument("--ros1", action="store_true", help="also write DIR/log.bag (ROS 1)")
     p.add_argument("--force", action="store_true", help="replace an existing DIR/log")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -64,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
         speed_mps=args.speed,
         sensor_overrides=overrides or None,
         odometry=args.odometry,
+        livox=args.livox,
+        ros1=args.ros1,
         progress=not args.quiet,
         overwrite=args.force,
     )

@@ -3,6 +3,7 @@ rosbag2/MCAP log + ``gt.tum`` + ``odom.tum`` + ``joints.json`` on disk)."""
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ from decod_rs.sim.drift import DriftResult, drift_odometry, resolve_drift
 from decod_rs.sim.fields import F64
 from decod_rs.sim.imu import ImuSamples, ImuSpec, simulate_imu
 from decod_rs.sim.lio import KissOdometry
+from decod_rs.sim.livox import Ros1Writer
 from decod_rs.sim.raycast import cast
 from decod_rs.sim.scenes import build_scene, scene_defaults
 from decod_rs.sim.sensors import SCAN_PERIOD_S, SensorSpec, measure, ray_directions, sensor_spec
@@ -36,6 +38,7 @@ from decod_rs.sim.writer import (
 T0_NS = 1_700_000_000 * 10**9
 SCAN_PERIOD_NS = round(SCAN_PERIOD_S * 1e9)
 LOG_DIRNAME = "log"
+ROS1_BAG_NAME = "log.bag"
 JOINTS_FORMAT_VERSION = 1
 
 
@@ -276,6 +279,25 @@ def generate(
     )
 
 
+class _Fanout:
+    """Sends every message to several writers (ROS 2 MCAP and, optionally, ROS 1)."""
+
+    def __init__(self, writers: list[LogWriter | Ros1Writer]) -> None:
+        self._writers = writers
+
+    def points(self, *args: Any) -> None:
+        for w in self._writers:
+            w.points(*args)
+
+    def odom(self, *args: Any) -> None:
+        for w in self._writers:
+            w.odom(*args)
+
+    def imu(self, *args: Any) -> None:
+        for w in self._writers:
+            w.imu(*args)
+
+
 def _backward_twist(poses: F64, k: int) -> tuple[F64, F64]:
     """Body-frame velocity between scans ``k - 1`` and ``k`` (zero at ``k = 0``)."""
     if k == 0:
@@ -331,6 +353,8 @@ def simulate(
     speed_mps: float | None = None,
     sensor_overrides: dict[str, Any] | None = None,
     odometry: str = "drift",
+    livox: bool = False,
+    ros1: bool = False,
     progress: bool = True,
     overwrite: bool = False,
 ) -> SimResult:
@@ -341,6 +365,8 @@ def simulate(
     ``drift`` is the odometry endpoint error in metres or a preset (``none``, ``low`` 0.2,
     ``medium`` 1.7, ``high`` 13.3). ``odometry="kiss-icp"`` replaces the drift model by a
     real LiDAR odometry (KISS-ICP) run on the simulated scans (``drift`` is then ignored).
+    ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
+    ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
     """
     if odometry not in ("drift", "kiss-icp"):
@@ -348,10 +374,17 @@ def simulate(
     t_start = time.perf_counter()
     out = Path(out_dir)
     log_dir = out / LOG_DIRNAME
-    if log_dir.exists():
-        if not overwrite:
-            raise FileExistsError(f"{log_dir} exists (pass overwrite=True / --force to replace)")
-        shutil.rmtree(log_dir)
+    bag_path = out / ROS1_BAG_NAME
+    for existing in (log_dir, bag_path):
+        if existing.exists():
+            if not overwrite:
+                raise FileExistsError(
+                    f"{existing} exists (pass overwrite=True / --force to replace)"
+                )
+            if existing.is_dir():
+                shutil.rmtree(existing)
+            else:
+                existing.unlink()
     out.mkdir(parents=True, exist_ok=True)
     sim = Simulation(
         scene,
@@ -377,7 +410,12 @@ def simulate(
     n_points = 0
     i_imu = 0
     bar = Progress(f"simulate {scene}", sim.n_scans, enabled=progress)
-    with LogWriter(log_dir) as w:
+    with contextlib.ExitStack() as stack:
+        w: LogWriter | Ros1Writer = stack.enter_context(LogWriter(log_dir, livox=livox))
+        writers: list[LogWriter | Ros1Writer] = [w]
+        if ros1:
+            writers.append(stack.enter_context(Ros1Writer(bag_path, livox=livox)))
+        w = _Fanout(writers)  # type: ignore[assignment]
         for k in range(sim.n_scans):
             stamp = int(sim.stamps_ns[k])
             while i_imu < imu_ns.size and imu_ns[i_imu] <= stamp:
@@ -428,6 +466,10 @@ def simulate(
             "max_lateral_m": float(np.max(np.hypot(err[:, 1], err[:, 2]))),
         }
     meta["files"] = {"log": LOG_DIRNAME, "gt": gt_tum.name, "odom": odom_tum.name}
+    if ros1:
+        meta["files"]["ros1_bag"] = ROS1_BAG_NAME
+    if livox:
+        meta["topics"]["/livox/lidar"] = "livox_ros_driver2/msg/CustomMsg (same points, body)"
     write_json(joints, meta)
     mcaps = sorted(log_dir.glob("*.mcap"))
     size = sum(f.stat().st_size for f in log_dir.iterdir())

@@ -15,6 +15,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from decod_rs.sim.fields import F64
+from decod_rs.sim.livox import CUSTOM_MSG, TOPIC_LIVOX, custom_msg_cdr, livox_types
 from decod_rs.sim.trajectory import quat_xyzw
 
 TOPIC_POINTS = "/points"
@@ -56,10 +57,16 @@ def _vec(v: F64) -> Any:
 class LogWriter:
     """Streams messages into ``log_dir`` (must not exist; rosbags creates it)."""
 
-    def __init__(self, log_dir: Path) -> None:
+    def __init__(self, log_dir: Path, livox: bool = False) -> None:
         self.log_dir = log_dir
         self._writer = Writer(log_dir, version=8, storage_plugin=StoragePlugin.MCAP)
         self.counts = {TOPIC_POINTS: 0, TOPIC_ODOM: 0, TOPIC_IMU: 0}
+        self._livox = livox
+        self._ts = _TS
+        if livox:
+            self._ts = get_typestore(Stores.ROS2_HUMBLE)
+            self._ts.register(livox_types())
+            self.counts[TOPIC_LIVOX] = 0
 
     def __enter__(self) -> LogWriter:
         w = self._writer
@@ -67,6 +74,8 @@ class LogWriter:
         self._c_points = w.add_connection(TOPIC_POINTS, _CLOUD.__msgtype__, typestore=_TS)
         self._c_odom = w.add_connection(TOPIC_ODOM, _ODOM.__msgtype__, typestore=_TS)
         self._c_imu = w.add_connection(TOPIC_IMU, _IMU.__msgtype__, typestore=_TS)
+        if self._livox:
+            self._c_livox = w.add_connection(TOPIC_LIVOX, CUSTOM_MSG, typestore=self._ts)
         return self
 
     def __exit__(
@@ -96,6 +105,9 @@ class LogWriter:
             is_dense=True,
         )
         self._write(self._c_points, stamp_ns, msg, TOPIC_POINTS)
+        if self._livox:
+            self._writer.write(self._c_livox, stamp_ns, custom_msg_cdr(stamp_ns, xyz, intensity))
+            self.counts[TOPIC_LIVOX] += 1
 
     def odom(self, stamp_ns: int, pose: F64, lin_body: F64, ang_body: F64) -> None:
         q = quat_xyzw(pose[None, :3, :3])[0]
