@@ -369,3 +369,17 @@ def test_livox_custom_msg_and_ros1_bag(tmp_path: Path) -> None:
         if first_cloud is None:
             first_cloud = cloud
         assert np.array_equal(first_cloud, cloud)
+
+
+@pytest.mark.parametrize("scene", ["hume", "pe", "shield", "horseshoe"])
+def test_surface_lookups_do_not_depend_on_array_shape(scene: str) -> None:
+    sc = build_scene(scene, 2, 20.0)
+    rng = np.random.default_rng(0)
+    # Points concentrated around joints so the per-joint patches are exercised.
+    x = rng.choice(sc.joints_x_m, (40, 30)) + rng.normal(0.0, 0.03, (40, 30))
+    th = rng.uniform(-np.pi, np.pi, (40, 30))
+    grid = sc.wall_dr(x, th)
+    flat = sc.wall_dr(x.ravel(), th.ravel())
+    assert grid.shape == (40, 30)
+    assert np.array_equal(grid.ravel(), flat)
+    assert np.any(grid != 0.0)

@@ -40,9 +40,12 @@ class PatchSet:
     tables: NDArray[np.float32]
 
     def __call__(self, x: F64, theta: F64) -> F64:
+        shape = np.broadcast(x, theta).shape
         n_j, n_u, n_t = self.tables.shape
         if n_j == 0:
-            return np.zeros_like(x)
+            return np.zeros(shape)
+        x = np.broadcast_to(x, shape).reshape(-1)
+        theta = np.broadcast_to(theta, shape).reshape(-1)
         k = np.searchsorted(self.centres, x)
         k_lo = np.clip(k - 1, 0, n_j - 1)
         k_hi = np.clip(k, 0, n_j - 1)
@@ -52,17 +55,17 @@ class PatchSet:
         u = x - self.centres[j]
         # Only the rays inside a band are looked up (a few % of them in a pipe).
         sel = np.nonzero(np.abs(u) < self.half_width)[0]
-        out = np.zeros(np.shape(x))
+        out = np.zeros(x.size)
         if sel.size == 0:
-            return out
+            return out.reshape(shape)
         du = 2.0 * self.half_width / (n_u - 1)
         fu = np.clip((u[sel] + self.half_width) / du, 0.0, n_u - 1.000001)
         iu = np.floor(fu).astype(np.int64)
         au = fu - iu
         grid = Grid2D(0.0, 1.0, -np.pi, 2.0 * np.pi / n_t, self.tables.reshape(n_j * n_u, n_t))
         row = (j[sel] * n_u + iu).astype(np.float64) + au
-        out[sel] = grid(row, np.broadcast_to(theta, np.shape(x))[sel])
-        return out
+        out[sel] = grid(row, theta[sel])
+        return out.reshape(shape)
 
     def grid_u(self) -> F64:
         """Axial sample positions of a table row, metres relative to the centre."""
