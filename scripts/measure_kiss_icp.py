@@ -28,8 +28,12 @@ SETTINGS = {
 }
 
 
-def run(scene: str, length: float | None, seed: int) -> dict[str, float]:
-    s = SETTINGS[scene]
+def run(
+    scene: str, length: float | None, seed: int, voxel: float | None = None
+) -> dict[str, float]:
+    s = dict(SETTINGS[scene])
+    if voxel is not None:
+        s["voxel"] = voxel
     sim = Simulation(scene, seed=seed, length_m=length or s["length"], drift="none")
     cfg = KISSConfig()
     cfg.data.max_range = s["max_range"]
@@ -69,10 +73,13 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", default=list(SETTINGS))
     ap.add_argument("--length", type=float, default=None)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--voxel", type=float, default=None, help="override the voxel size (m)")
     args = ap.parse_args()
     for scene in args.scenes:
-        res = run(scene, args.length, args.seed)
-        print(json.dumps({"scene": scene, **{k: round(v, 4) for k, v in res.items()}}))
+        res = run(scene, args.length, args.seed, args.voxel)
+        voxel = args.voxel or SETTINGS[scene]["voxel"]
+        out = {"scene": scene, "voxel_m": voxel, **{k: round(v, 4) for k, v in res.items()}}
+        print(json.dumps(out), flush=True)
 
 
 if __name__ == "__main__":
