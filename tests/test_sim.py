@@ -267,6 +267,11 @@ def test_identical_joints_are_identical(scene: str) -> None:
     maps = _cell_maps(sc, half, n_z=8, n_p=64)
     assert maps.shape[0] >= 3
     assert np.max(np.abs(maps - maps[0])) < 1e-6
+    if sc.floor_z_m is not None:
+        # The floor beside every boundary repeats as well.
+        y = np.linspace(-1.5, 1.5, 31)
+        floors = [sc.floor_dz(x + np.zeros_like(y), y) for x in sc.joints_x_m[1:-1] + 0.3]
+        assert np.max(np.abs(np.array(floors) - floors[0])) < 1e-6
     # Without the flag the joints differ by far more than that.
     diff = _cell_maps(build_scene(scene, 4, 30.0), half, n_z=8, n_p=64)
     assert np.max(np.abs(diff - diff[0])) > 1e-4

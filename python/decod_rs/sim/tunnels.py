@@ -33,9 +33,22 @@ from decod_rs.sim.surface import (
 
 
 def _floor_texture(
-    rng: np.random.Generator, x_min: float, x_max: float, sigma: float, corr_m: float
+    rng: np.random.Generator,
+    x_min: float,
+    x_max: float,
+    sigma: float,
+    corr_m: float,
+    period: float | None = None,
+    x0: float = 0.0,
 ) -> Grid2D:
+    """Floor roughness on (x, y); with ``period`` it repeats along x every ``period`` metres
+    from ``x0`` (aliased tunnels: the floor beside every boundary is the same too)."""
     du = 0.05
+    if period is not None:
+        n_u = max(4, round(period / du))
+        du_x = period / n_u
+        values = smooth_noise(rng, (n_u, 160), (corr_m / du_x, corr_m / du), sigma)
+        return Grid2D(x0, du_x, -4.0, du, values, wrap_v=False, wrap_u=True)
     n_u = int(np.ceil((x_max - x_min) / du)) + 2
     values = smooth_noise(rng, (n_u, 160), (corr_m / du, corr_m / du), sigma)
     return Grid2D(x_min, du, -4.0, du, values, wrap_v=False)
@@ -171,7 +184,9 @@ def build_shield(rng: np.random.Generator, x_max: float, distinct: float, identi
     )
     if identical:
         rough = Grid2D(joints[0], rough.du, rough.v0, rough.dv, rough.values, True, True)
-    floor = _floor_texture(rng, x_min, x_max, p["floor_roughness_m"], 0.08)
+    floor = _floor_texture(
+        rng, x_min, x_max, p["floor_roughness_m"], 0.08, ring if identical else None, joints[0]
+    )
     p["identical_joints"] = identical
     p["ring_rotation_deg"] = [round(float(np.rad2deg(r)), 3) for r in rot]
     return Scene(
@@ -273,7 +288,7 @@ def build_horseshoe(
     def rock_base(x: F64, theta: F64) -> F64:
         return np.full(np.broadcast(x, theta).shape, offset)
 
-    floor = _floor_texture(rng, x_min, x_max, p["floor_roughness_m"], 0.1)
+    floor = _floor_texture(rng, x_min, x_max, p["floor_roughness_m"], 0.1, period, joints[0])
     p["identical_joints"] = identical
     return Scene(
         name="horseshoe",
