@@ -411,11 +411,12 @@ def simulate(
     i_imu = 0
     bar = Progress(f"simulate {scene}", sim.n_scans, enabled=progress)
     with contextlib.ExitStack() as stack:
-        w: LogWriter | Ros1Writer = stack.enter_context(LogWriter(log_dir, livox=livox))
-        writers: list[LogWriter | Ros1Writer] = [w]
+        writers: list[LogWriter | Ros1Writer] = [
+            stack.enter_context(LogWriter(log_dir, livox=livox))
+        ]
         if ros1:
             writers.append(stack.enter_context(Ros1Writer(bag_path, livox=livox)))
-        w = _Fanout(writers)  # type: ignore[assignment]
+        w = _Fanout(writers)
         for k in range(sim.n_scans):
             stamp = int(sim.stamps_ns[k])
             while i_imu < imu_ns.size and imu_ns[i_imu] <= stamp:

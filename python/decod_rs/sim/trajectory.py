@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from decod_rs.sim.fields import F64
 
@@ -211,7 +210,3 @@ class Trajectory:
         out[:, :3, 3] = pos
         out[:, 3, 3] = 1.0
         return out
-
-
-def as_f64(a: NDArray[np.floating[Any]]) -> F64:
-    return np.asarray(a, dtype=np.float64)
