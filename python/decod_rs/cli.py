@@ -17,6 +17,7 @@ COMMANDS = [
     "convert",
     "demo",
     "run",
+    "simulate",
 ]
 
 

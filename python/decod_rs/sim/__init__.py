@@ -1,0 +1,60 @@
+"""Synthetic corridors: a simulator that writes real ROS 2 MCAP logs with ground truth.
+
+Scenes (defaults: sensor, speed, one-way length, return):
+
+- ``hume``: precast concrete pipe, 0.6 m ID, 2.43 m segments, annular joint grooves whose
+  depth/width/centre vary around the circumference, eccentric lips, chipped edges, lateral
+  connections, 1 mm roughness, 1.5 mm range noise (``avia``, 0.4 m/s, 60 m, ``reverse``).
+- ``pe``: ribbed polyethylene pipe, 0.4 m, ribs every 35 mm, couplers every 6 m
+  (``avia``, 0.4 m/s, 60 m, ``reverse``).
+- ``shield``: 6 m segmental tunnel, 1.5 m rings, ring seams with lipping, staggered
+  longitudinal seams, bolt pockets beside the seams, flat invert, 1 cm range noise
+  (``spin16``, 1.5 m/s, 120 m, ``turn``).
+- ``horseshoe``: rough rock, steel arches every 1.2 m, flat floor, 1.5 cm range noise
+  (``spin16``, 1.2 m/s, 100 m, ``turn``).
+
+Frames: world x = corridor axis from x = 0, z up, section centre at y = z = 0 (tunnel floors
+at ``floor_z_m``: shield -2.0 m, horseshoe -1.5 m). Body = sensor frame, FLU. ``gt.tum`` is
+``world_from_body``; ``/odom`` and ``odom.tum`` are the drifting ``odom_from_body`` (odom =
+world at the first stamp). Scans at 10 Hz, IMU at 100 Hz, stamps from 1700000000 s.
+
+Python::
+
+    from decod_rs.sim import simulate, generate
+    res = simulate("hume", "out/hume", seed=0, drift=2.0)   # -> SimResult (files on disk)
+    data = generate("pe", length_m=5.0, scan_indices=[0, 10])  # -> SimData (in memory)
+
+``out_dir`` layout: ``log/`` (rosbag2: ``metadata.yaml`` + ``log.mcap``), ``gt.tum``,
+``odom.tum``, ``joints.json``. ``joints.json`` keys: ``format`` ("decod-sim"), ``version``
+(1), ``scene``, ``seed``, ``distinctiveness``, ``identical_joints``, ``axis`` {frame,
+origin_m, direction, centre_line_y_m, centre_line_z_m, radius_m, floor_z_m, x_min_m,
+x_max_m}, ``joints_x_m`` (true boundary positions along the axis, m from x = 0),
+``n_joints``, ``scene_params`` (every geometry parameter), ``sensor`` (SensorSpec fields +
+``range_noise_m``), ``trajectory`` (TrajectorySpec fields), ``drift`` {requested_endpoint_m,
+endpoint_error_m, endpoint_axial_m, endpoint_lateral_m, max_axial_m, yaw_end_rad,
+pitch_end_rad, model}, ``odometry`` {name: "drift-model" | "kiss-icp", endpoint_error_m, ...},
+``imu`` (ImuSpec fields), ``time_split`` {start_stamp, far_end_arrival_stamp,
+return_start_stamp, end_stamp, outbound_scans [first, last], return_scans [first, last],
+duration_s}, ``frames``, ``topics``, ``files`` {log, gt, odom}.
+"""
+
+from decod_rs.sim.api import SimData, SimResult, Simulation, generate, simulate
+from decod_rs.sim.drift import DRIFT_PRESETS, drift_odometry, resolve_drift
+from decod_rs.sim.scenes import SCENES, build_scene
+from decod_rs.sim.sensors import SENSORS, SensorSpec, sensor_spec
+
+__all__ = [
+    "DRIFT_PRESETS",
+    "SCENES",
+    "SENSORS",
+    "SensorSpec",
+    "SimData",
+    "SimResult",
+    "Simulation",
+    "build_scene",
+    "drift_odometry",
+    "generate",
+    "resolve_drift",
+    "sensor_spec",
+    "simulate",
+]

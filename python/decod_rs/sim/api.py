@@ -1,0 +1,499 @@
+"""Public entry points: :func:`generate` (in memory, for tests) and :func:`simulate` (a
+rosbag2/MCAP log + ``gt.tum`` + ``odom.tum`` + ``joints.json`` on disk)."""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs.progress import Progress
+from decod_rs.sim.drift import DriftResult, drift_odometry, resolve_drift
+from decod_rs.sim.fields import F64
+from decod_rs.sim.imu import ImuSamples, ImuSpec, simulate_imu
+from decod_rs.sim.lio import KissOdometry
+from decod_rs.sim.livox import Ros1Writer
+from decod_rs.sim.raycast import cast
+from decod_rs.sim.scenes import build_scene, scene_defaults
+from decod_rs.sim.sensors import SCAN_PERIOD_S, SensorSpec, measure, ray_directions, sensor_spec
+from decod_rs.sim.surface import Scene
+from decod_rs.sim.trajectory import Trajectory, TrajectorySpec, so3_log
+from decod_rs.sim.writer import (
+    TOPIC_IMU,
+    TOPIC_ODOM,
+    TOPIC_POINTS,
+    LogWriter,
+    stamp_text,
+    write_json,
+    write_tum,
+)
+
+# Stamps start here (2023-11-14T22:13:20Z), whole seconds, so TUM stamps print exactly.
+T0_NS = 1_700_000_000 * 10**9
+SCAN_PERIOD_NS = round(SCAN_PERIOD_S * 1e9)
+LOG_DIRNAME = "log"
+ROS1_BAG_NAME = "log.bag"
+JOINTS_FORMAT_VERSION = 1
+
+
+class Simulation:
+    """One fully specified run: scene, sensor, trajectory, drift and IMU, all seeded.
+
+    Scans are generated on demand (:meth:`scan`), each from its own seeded generator, so the
+    k-th scan does not depend on which scans were generated before it.
+    """
+
+    def __init__(
+        self,
+        scene: str,
+        *,
+        seed: int = 0,
+        length_m: float | None = None,
+        sensor: str | None = None,
+        return_mode: str | None = None,
+        drift: float | str = "medium",
+        distinctiveness: float | None = None,
+        identical_joints: bool = False,
+        speed_mps: float | None = None,
+        sensor_overrides: dict[str, Any] | None = None,
+        imu: ImuSpec | None = None,
+    ) -> None:
+        defaults = scene_defaults(scene)
+        self.seed = int(seed)
+        self.distinctiveness = 1.0 if distinctiveness is None else float(distinctiveness)
+        self.identical_joints = bool(identical_joints)
+        length = defaults.length_m if length_m is None else float(length_m)
+        speed = defaults.speed_mps if speed_mps is None else float(speed_mps)
+        if not (np.isfinite(length) and length > 0):
+            raise ValueError(f"length_m must be > 0, got {length}")
+        self.traj_spec = TrajectorySpec(
+            x_start_m=defaults.x_start_m,
+            length_m=length,
+            speed_mps=speed,
+            return_mode=return_mode or defaults.return_mode,
+            z0_m=defaults.z0_m,
+            lateral_m=defaults.lateral_m,
+            vertical_m=defaults.vertical_m,
+            roll_rad=defaults.roll_rad,
+            pitch_rad=defaults.pitch_rad,
+            yaw_rad=defaults.yaw_rad,
+            wobble_wavelength_m=defaults.wobble_wavelength_m,
+        )
+        self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
+        x_max = defaults.x_start_m + length + defaults.beyond_m
+        self.scene: Scene = build_scene(
+            scene, self.seed, x_max, self.distinctiveness, self.identical_joints
+        )
+        self.sensor: SensorSpec = sensor_spec(sensor or defaults.sensor, **(sensor_overrides or {}))
+        self.range_noise_m = (
+            self.sensor.range_noise_m
+            if self.sensor.range_noise_m is not None
+            else self.scene.range_noise_m
+        )
+        n_scans = int(np.floor(self.traj.duration_s / SCAN_PERIOD_S)) + 1
+        self.stamps_ns = T0_NS + SCAN_PERIOD_NS * np.arange(n_scans, dtype=np.int64)
+        self.t_s: F64 = np.arange(n_scans, dtype=np.float64) * SCAN_PERIOD_S
+        self.gt_poses = self.traj.poses(self.t_s)
+        self.drift_request_m = resolve_drift(drift)
+        self.drift: DriftResult = drift_odometry(
+            self.gt_poses,
+            self.traj.travelled(self.t_s),
+            self.drift_request_m,
+            np.random.default_rng([self.seed, 3]),
+        )
+        self.imu_spec = imu or ImuSpec()
+        self.imu: ImuSamples = simulate_imu(
+            self.traj, self.imu_spec, np.random.default_rng([self.seed, 4])
+        )
+        refl = np.zeros(8)
+        for k, v in self.scene.reflectivity.items():
+            refl[k] = v
+        self._reflectivity = refl
+
+    @property
+    def n_scans(self) -> int:
+        return int(self.stamps_ns.size)
+
+    def scan(self, k: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Scan ``k``: points ``(M, 3)`` float32 in the body frame and intensities ``(M,)``."""
+        pose = self.gt_poses[k]
+        rot, origin = pose[:3, :3], pose[:3, 3]
+        dirs_body = ray_directions(self.sensor, k)
+        hits = cast(self.scene, origin, dirs_body @ rot.T)
+        rng = np.random.default_rng([self.seed, 5, k])
+        pts_w, inten, _ = measure(
+            self.sensor, hits, origin, self._reflectivity, self.range_noise_m, rng
+        )
+        pts_b = (pts_w - origin) @ rot
+        return pts_b.astype(np.float32), inten
+
+    def odom_twist(self) -> tuple[F64, F64]:
+        """Body-frame linear and angular velocity of the odometry at every scan (finite
+        differences of the odometry poses; zero at the last scan)."""
+        p = self.drift.odom_poses
+        lin = np.zeros((self.n_scans, 3))
+        ang = np.zeros((self.n_scans, 3))
+        if self.n_scans > 1:
+            dp = (p[1:, :3, 3] - p[:-1, :3, 3]) / SCAN_PERIOD_S
+            lin[:-1] = np.einsum("nji,nj->ni", p[:-1, :3, :3], dp)
+            rel = np.einsum("nji,njk->nik", p[:-1, :3, :3], p[1:, :3, :3])
+            ang[:-1] = so3_log(rel) / SCAN_PERIOD_S
+        return lin, ang
+
+    def scan_index_at(self, t_s: float) -> int:
+        return int(min(max(round(t_s / SCAN_PERIOD_S), 0), self.n_scans - 1))
+
+    def metadata(self) -> dict[str, Any]:
+        """The ``joints.json`` content (see the module docs of :mod:`decod_rs.sim`)."""
+        sc = self.scene
+        tr = self.traj
+        k_far = self.scan_index_at(tr.t_far_arrive)
+        k_ret = self.scan_index_at(tr.t_return_start)
+        dr = self.drift
+        return {
+            "format": "decod-sim",
+            "version": JOINTS_FORMAT_VERSION,
+            "scene": sc.name,
+            "seed": self.seed,
+            "distinctiveness": self.distinctiveness,
+            "identical_joints": self.identical_joints,
+            "axis": {
+                "frame": "world",
+                "origin_m": [0.0, 0.0, 0.0],
+                "direction": [1.0, 0.0, 0.0],
+                "centre_line_y_m": 0.0,
+                "centre_line_z_m": 0.0,
+                "radius_m": sc.radius_m,
+                "floor_z_m": sc.floor_z_m,
+                "x_min_m": sc.x_min_m,
+                "x_max_m": sc.x_max_m,
+            },
+            "joints_x_m": [round(float(x), 6) for x in sc.joints_x_m],
+            "n_joints": int(sc.joints_x_m.size),
+            "scene_params": sc.params,
+            "sensor": {**self.sensor.as_dict(), "range_noise_m": self.range_noise_m},
+            "trajectory": self.traj_spec.as_dict(),
+            "drift": {
+                "requested_endpoint_m": self.drift_request_m,
+                "endpoint_error_m": dr.endpoint_error_m,
+                "endpoint_axial_m": dr.endpoint_axial_m,
+                "endpoint_lateral_m": dr.endpoint_lateral_m,
+                "max_axial_m": dr.max_axial_m,
+                "yaw_end_rad": dr.yaw_end_rad,
+                "pitch_end_rad": dr.pitch_end_rad,
+                "model": "axial scale error + random walk + creep to the endpoint; "
+                "yaw/pitch random-walk bridges; functions of travelled distance",
+            },
+            "odometry": {"name": "drift-model", "endpoint_error_m": dr.endpoint_error_m},
+            "imu": self.imu_spec.as_dict(),
+            "time_split": {
+                "start_stamp": stamp_text(int(self.stamps_ns[0])),
+                "far_end_arrival_stamp": stamp_text(T0_NS + round(tr.t_far_arrive * 1e9)),
+                "return_start_stamp": stamp_text(T0_NS + round(tr.t_return_start * 1e9)),
+                "end_stamp": stamp_text(int(self.stamps_ns[-1])),
+                "outbound_scans": [0, k_far],
+                "return_scans": [k_ret, self.n_scans - 1],
+                "duration_s": float(self.t_s[-1]),
+            },
+            "frames": {
+                "world": "corridor axis +x from x = 0, z up; gt.tum is world_from_body",
+                "body": "sensor frame, x forward, y left, z up (FLU)",
+                "odom": "drifting odometry frame, equal to world at the first stamp",
+            },
+            "topics": {
+                TOPIC_POINTS: "sensor_msgs/msg/PointCloud2 (x y z intensity float32, body)",
+                TOPIC_ODOM: "nav_msgs/msg/Odometry (odom -> body, drifting)",
+                TOPIC_IMU: "sensor_msgs/msg/Imu (body, specific force, 100 Hz)",
+            },
+        }
+
+
+@dataclass
+class SimData:
+    """A run in memory. ``stamps_ns (N,)``; ``points``: N arrays ``(M_k, 3)`` float32 (body
+    frame); ``intensities``: N arrays ``(M_k,)``; ``gt_poses``/``odom_poses`` ``(N, 4, 4)``
+    (``world_from_body`` / ``odom_from_body``); ``imu_stamps_ns (M,)``, ``imu_gyro``/
+    ``imu_accel`` ``(M, 3)``; ``joints_x_m (J,)``; ``metadata`` = the joints.json content."""
+
+    stamps_ns: NDArray[np.int64]
+    points: list[NDArray[np.float32]]
+    intensities: list[NDArray[np.float32]]
+    gt_poses: F64
+    odom_poses: F64
+    imu_stamps_ns: NDArray[np.int64]
+    imu_gyro: F64
+    imu_accel: F64
+    joints_x_m: F64
+    scene: Scene
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+
+def generate(
+    scene: str,
+    *,
+    seed: int = 0,
+    length_m: float | None = None,
+    sensor: str | None = None,
+    return_mode: str | None = None,
+    drift: float | str = "medium",
+    distinctiveness: float | None = None,
+    identical_joints: bool = False,
+    speed_mps: float | None = None,
+    sensor_overrides: dict[str, Any] | None = None,
+    scan_indices: list[int] | None = None,
+) -> SimData:
+    """Simulate a run in memory (every scan, or only ``scan_indices``; the poses, IMU and
+    drift always cover the whole run and ``stamps_ns`` the selected scans)."""
+    sim = Simulation(
+        scene,
+        seed=seed,
+        length_m=length_m,
+        sensor=sensor,
+        return_mode=return_mode,
+        drift=drift,
+        distinctiveness=distinctiveness,
+        identical_joints=identical_joints,
+        speed_mps=speed_mps,
+        sensor_overrides=sensor_overrides,
+    )
+    idx = list(range(sim.n_scans)) if scan_indices is None else list(scan_indices)
+    scans = [sim.scan(k) for k in idx]
+    return SimData(
+        stamps_ns=sim.stamps_ns[idx],
+        points=[p for p, _ in scans],
+        intensities=[i for _, i in scans],
+        gt_poses=sim.gt_poses[idx],
+        odom_poses=sim.drift.odom_poses[idx],
+        imu_stamps_ns=T0_NS + np.round(sim.imu.t_s * 1e9).astype(np.int64),
+        imu_gyro=sim.imu.gyro_radps,
+        imu_accel=sim.imu.accel_mps2,
+        joints_x_m=sim.scene.joints_x_m.copy(),
+        scene=sim.scene,
+        metadata=sim.metadata(),
+    )
+
+
+class _Fanout:
+    """Sends every message to several writers (ROS 2 MCAP and, optionally, ROS 1)."""
+
+    def __init__(self, writers: list[LogWriter | Ros1Writer]) -> None:
+        self._writers = writers
+
+    def points(self, *args: Any) -> None:
+        for w in self._writers:
+            w.points(*args)
+
+    def odom(self, *args: Any) -> None:
+        for w in self._writers:
+            w.odom(*args)
+
+    def imu(self, *args: Any) -> None:
+        for w in self._writers:
+            w.imu(*args)
+
+
+def _backward_twist(poses: F64, k: int) -> tuple[F64, F64]:
+    """Body-frame velocity between scans ``k - 1`` and ``k`` (zero at ``k = 0``)."""
+    if k == 0:
+        return np.zeros(3), np.zeros(3)
+    prev, cur = poses[k - 1], poses[k]
+    lin = prev[:3, :3].T @ (cur[:3, 3] - prev[:3, 3]) / SCAN_PERIOD_S
+    ang = so3_log((prev[:3, :3].T @ cur[:3, :3])[None])[0] / SCAN_PERIOD_S
+    return lin, ang
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """What :func:`simulate` wrote and measured."""
+
+    out_dir: Path
+    log_dir: Path
+    mcap_path: Path
+    gt_tum: Path
+    odom_tum: Path
+    joints_json: Path
+    scene: str
+    sensor: str
+    n_scans: int
+    n_points: int
+    n_imu: int
+    n_joints: int
+    duration_s: float
+    endpoint_error_m: float
+    log_size_bytes: int
+    time_total_s: float
+    time_setup_s: float
+    time_scans_s: float
+    time_write_s: float
+    time_odometry_s: float = 0.0
+
+    @property
+    def time_per_scan_s(self) -> float:
+        """Ray casting + measurement time per scan (excludes serialisation and writing)."""
+        return self.time_scans_s / max(self.n_scans, 1)
+
+
+def simulate(
+    scene: str,
+    out_dir: Path | str,
+    *,
+    seed: int = 0,
+    length_m: float | None = None,
+    sensor: str | None = None,
+    return_mode: str | None = None,
+    drift: float | str = "medium",
+    distinctiveness: float | None = None,
+    identical_joints: bool = False,
+    speed_mps: float | None = None,
+    sensor_overrides: dict[str, Any] | None = None,
+    odometry: str = "drift",
+    livox: bool = False,
+    ros1: bool = False,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> SimResult:
+    """Simulate ``scene`` and write ``out_dir/log/`` (rosbag2, MCAP storage: ``/points``,
+    ``/odom``, ``/imu``), ``out_dir/gt.tum``, ``out_dir/odom.tum`` and ``out_dir/joints.json``.
+
+    ``return_mode`` defaults to the scene's (``reverse`` for pipes, ``turn`` for tunnels);
+    ``drift`` is the odometry endpoint error in metres or a preset (``none``, ``low`` 0.2,
+    ``medium`` 1.7, ``high`` 13.3). ``odometry="kiss-icp"`` replaces the drift model by a
+    real LiDAR odometry (KISS-ICP) run on the simulated scans (``drift`` is then ignored).
+    ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
+    ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
+    Raises ``FileExistsError`` if the log exists and not ``overwrite``.
+    """
+    if odometry not in ("drift", "kiss-icp"):
+        raise ValueError(f"odometry must be 'drift' or 'kiss-icp', got {odometry!r}")
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    log_dir = out / LOG_DIRNAME
+    bag_path = out / ROS1_BAG_NAME
+    for existing in (log_dir, bag_path):
+        if existing.exists():
+            if not overwrite:
+                raise FileExistsError(
+                    f"{existing} exists (pass overwrite=True / --force to replace)"
+                )
+            if existing.is_dir():
+                shutil.rmtree(existing)
+            else:
+                existing.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    sim = Simulation(
+        scene,
+        seed=seed,
+        length_m=length_m,
+        sensor=sensor,
+        return_mode=return_mode,
+        drift=drift,
+        distinctiveness=distinctiveness,
+        identical_joints=identical_joints,
+        speed_mps=speed_mps,
+        sensor_overrides=sensor_overrides,
+    )
+    kiss = KissOdometry(scene, sim.gt_poses[0]) if odometry == "kiss-icp" else None
+    odom_poses = sim.drift.odom_poses.copy()
+    t_setup = time.perf_counter() - t_start
+    imu_ns = T0_NS + np.round(sim.imu.t_s * 1e9).astype(np.int64)
+    lin, ang = sim.odom_twist()
+    var_g = sim.imu_spec.gyro_noise_radps**2
+    var_a = sim.imu_spec.accel_noise_mps2**2
+    t_scans = 0.0
+    t_odom = 0.0
+    n_points = 0
+    i_imu = 0
+    bar = Progress(f"simulate {scene}", sim.n_scans, enabled=progress)
+    with contextlib.ExitStack() as stack:
+        writers: list[LogWriter | Ros1Writer] = [
+            stack.enter_context(LogWriter(log_dir, livox=livox))
+        ]
+        if ros1:
+            writers.append(stack.enter_context(Ros1Writer(bag_path, livox=livox)))
+        w = _Fanout(writers)
+        for k in range(sim.n_scans):
+            stamp = int(sim.stamps_ns[k])
+            while i_imu < imu_ns.size and imu_ns[i_imu] <= stamp:
+                w.imu(
+                    int(imu_ns[i_imu]),
+                    sim.imu.gyro_radps[i_imu],
+                    sim.imu.accel_mps2[i_imu],
+                    var_g,
+                    var_a,
+                )
+                i_imu += 1
+            t0 = time.perf_counter()
+            pts, inten = sim.scan(k)
+            t_scans += time.perf_counter() - t0
+            n_points += pts.shape[0]
+            w.points(stamp, pts, inten)
+            if kiss is not None:
+                t1 = time.perf_counter()
+                odom_poses[k] = kiss.step(pts)
+                t_odom += time.perf_counter() - t1
+                lin[k], ang[k] = _backward_twist(odom_poses, k)
+            w.odom(stamp, odom_poses[k], lin[k], ang[k])
+            bar.advance()
+        while i_imu < imu_ns.size:
+            w.imu(
+                int(imu_ns[i_imu]),
+                sim.imu.gyro_radps[i_imu],
+                sim.imu.accel_mps2[i_imu],
+                var_g,
+                var_a,
+            )
+            i_imu += 1
+    bar.close()
+    gt_tum = out / "gt.tum"
+    odom_tum = out / "odom.tum"
+    joints = out / "joints.json"
+    write_tum(gt_tum, sim.stamps_ns, sim.gt_poses)
+    write_tum(odom_tum, sim.stamps_ns, odom_poses)
+    endpoint = float(np.linalg.norm(odom_poses[-1, :3, 3] - sim.gt_poses[-1, :3, 3]))
+    meta = sim.metadata()
+    if kiss is not None:
+        err = odom_poses[:, :3, 3] - sim.gt_poses[:, :3, 3]
+        meta["odometry"] = {
+            **kiss.settings,
+            "endpoint_error_m": endpoint,
+            "endpoint_axial_m": float(err[-1, 0]),
+            "max_axial_m": float(np.max(np.abs(err[:, 0]))),
+            "max_lateral_m": float(np.max(np.hypot(err[:, 1], err[:, 2]))),
+        }
+    meta["files"] = {"log": LOG_DIRNAME, "gt": gt_tum.name, "odom": odom_tum.name}
+    if ros1:
+        meta["files"]["ros1_bag"] = ROS1_BAG_NAME
+    if livox:
+        meta["topics"]["/livox/lidar"] = "livox_ros_driver2/msg/CustomMsg (same points, body)"
+    write_json(joints, meta)
+    mcaps = sorted(log_dir.glob("*.mcap"))
+    size = sum(f.stat().st_size for f in log_dir.iterdir())
+    total = time.perf_counter() - t_start
+    return SimResult(
+        out_dir=out,
+        log_dir=log_dir,
+        mcap_path=mcaps[0] if mcaps else log_dir,
+        gt_tum=gt_tum,
+        odom_tum=odom_tum,
+        joints_json=joints,
+        scene=scene,
+        sensor=sim.sensor.name,
+        n_scans=sim.n_scans,
+        n_points=n_points,
+        n_imu=int(imu_ns.size),
+        n_joints=int(sim.scene.joints_x_m.size),
+        duration_s=float(sim.t_s[-1]),
+        endpoint_error_m=endpoint,
+        log_size_bytes=size,
+        time_total_s=total,
+        time_setup_s=t_setup,
+        time_scans_s=t_scans,
+        time_write_s=total - t_setup - t_scans - t_odom,
+        time_odometry_s=t_odom,
+    )

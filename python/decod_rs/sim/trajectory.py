@@ -1,0 +1,212 @@
+"""Out-and-back trajectories along the corridor (world +x) and rotation helpers.
+
+The vehicle stands still for ``pre_s``, drives ``length_m`` out with cosine speed ramps,
+stops at the far end (``reverse``: drives back with the heading unchanged, a pipe crawler;
+``turn``: turns 180 deg in place, then drives back), and stands still for ``post_s``.
+Lateral, vertical, roll, pitch and yaw wobble are functions of the travelled distance (a path
+that wanders in space; no wobble while standing still), so the IMU is quiet at rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from decod_rs.sim.fields import F64
+
+
+def rot_x(a: F64) -> F64:
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack(
+        [np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2
+    )
+
+
+def rot_y(a: F64) -> F64:
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack(
+        [np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2
+    )
+
+
+def rot_z(a: F64) -> F64:
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
+
+
+def quat_xyzw(rot: F64) -> F64:
+    """Unit quaternions ``(N, 4)`` as x, y, z, w (w >= 0) from rotation matrices ``(N, 3, 3)``."""
+    m = rot
+    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    cands = np.stack(
+        [
+            np.stack(
+                [m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1], 1 + tr],
+                -1,
+            ),
+            np.stack(
+                [
+                    1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2],
+                    m[:, 0, 1] + m[:, 1, 0],
+                    m[:, 0, 2] + m[:, 2, 0],
+                    m[:, 2, 1] - m[:, 1, 2],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[:, 0, 1] + m[:, 1, 0],
+                    1 + m[:, 1, 1] - m[:, 0, 0] - m[:, 2, 2],
+                    m[:, 1, 2] + m[:, 2, 1],
+                    m[:, 0, 2] - m[:, 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[:, 0, 2] + m[:, 2, 0],
+                    m[:, 1, 2] + m[:, 2, 1],
+                    1 + m[:, 2, 2] - m[:, 0, 0] - m[:, 1, 1],
+                    m[:, 1, 0] - m[:, 0, 1],
+                ],
+                -1,
+            ),
+        ],
+        1,
+    )
+    choice = np.argmax(np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], -1), axis=1)
+    q = cands[np.arange(m.shape[0]), choice]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return np.where(q[:, 3:4] < 0, -q, q)
+
+
+def so3_log(rot: F64) -> F64:
+    """Rotation vectors ``(N, 3)`` of rotation matrices ``(N, 3, 3)`` (angles below pi)."""
+    cos_a = np.clip((np.trace(rot, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    ang = np.arccos(cos_a)
+    w = np.stack(
+        [rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]], -1
+    )
+    sin_a = np.sin(ang)
+    scale = np.where(sin_a > 1e-9, ang / (2.0 * np.where(sin_a > 1e-9, sin_a, 1.0)), 0.5)
+    return w * scale[:, None]
+
+
+@dataclass(frozen=True)
+class TrajectorySpec:
+    """Parameters of an out-and-back run (metres, seconds, radians)."""
+
+    x_start_m: float
+    length_m: float
+    speed_mps: float
+    return_mode: str  # "reverse" | "turn"
+    y0_m: float = 0.0
+    z0_m: float = 0.0
+    ramp_s: float = 2.0
+    pre_s: float = 2.0
+    post_s: float = 1.0
+    pause_s: float = 2.0
+    turn_s: float = 6.0
+    lateral_m: float = 0.01
+    vertical_m: float = 0.005
+    roll_rad: float = 0.03
+    pitch_rad: float = 0.008
+    yaw_rad: float = 0.01
+    wobble_wavelength_m: float = 3.0
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class Trajectory:
+    """Ground-truth ``world_from_body`` poses at arbitrary times (vectorised)."""
+
+    def __init__(self, spec: TrajectorySpec, rng: np.random.Generator) -> None:
+        if spec.return_mode not in ("reverse", "turn"):
+            raise ValueError(f"return_mode must be 'reverse' or 'turn', got {spec.return_mode!r}")
+        if spec.speed_mps <= 0 or spec.length_m <= spec.speed_mps * spec.ramp_s:
+            raise ValueError(
+                f"length_m ({spec.length_m}) must exceed speed_mps * ramp_s "
+                f"({spec.speed_mps * spec.ramp_s}) and speed_mps must be > 0"
+            )
+        self.spec = spec
+        self.leg_s = spec.length_m / spec.speed_mps + spec.ramp_s
+        self.stop_s = spec.turn_s if spec.return_mode == "turn" else spec.pause_s
+        self.t_far_arrive = spec.pre_s + self.leg_s
+        self.t_return_start = self.t_far_arrive + self.stop_s
+        self.duration_s = self.t_return_start + self.leg_s + spec.post_s
+        # Wobble: per degree of freedom, three spatial harmonics with random phases.
+        self._wob: dict[str, tuple[F64, F64, F64]] = {}
+        lam = spec.wobble_wavelength_m
+        for name, amp in (
+            ("y", spec.lateral_m),
+            ("z", spec.vertical_m),
+            ("roll", spec.roll_rad),
+            ("pitch", spec.pitch_rad),
+            ("yaw", spec.yaw_rad),
+        ):
+            wavelengths = lam * np.array([2.7, 1.0, 0.37]) * rng.uniform(0.8, 1.25, 3)
+            amps = amp * np.array([0.7, 0.5, 0.15])
+            phases = rng.uniform(0.0, 2.0 * np.pi, 3)
+            self._wob[name] = (2.0 * np.pi / wavelengths, amps, phases)
+
+    def _leg(self, tau: F64) -> F64:
+        """Distance covered ``tau`` seconds into a leg (cosine speed ramps)."""
+        sp, tr, tl = self.spec.speed_mps, self.spec.ramp_s, self.leg_s
+        tau = np.clip(tau, 0.0, tl)
+
+        def up(t: F64) -> F64:
+            tt = np.minimum(t, tr)
+            return 0.5 * sp * (tt - tr / np.pi * np.sin(np.pi * tt / tr)) + sp * np.maximum(
+                t - tr, 0.0
+            )
+
+        return np.where(tau <= 0.5 * tl, up(tau), self.spec.length_m - up(tl - tau))
+
+    def travelled(self, t: F64) -> F64:
+        """Distance travelled along the axis since the start, metres (monotone)."""
+        s = self.spec
+        out = self._leg(t - s.pre_s)
+        back = self._leg(t - self.t_return_start)
+        return out + back
+
+    def axial(self, t: F64) -> F64:
+        """Nominal axial position (world x) without wobble."""
+        s = self.spec
+        return s.x_start_m + self._leg(t - s.pre_s) - self._leg(t - self.t_return_start)
+
+    def _wobble(self, name: str, d: F64) -> F64:
+        k, a, ph = self._wob[name]
+        return np.sum(a[None, :] * np.sin(d[:, None] * k[None, :] + ph[None, :]), axis=1)
+
+    def heading(self, t: F64) -> F64:
+        if self.spec.return_mode == "reverse":
+            return np.zeros_like(t)
+        frac = np.clip((t - self.t_far_arrive) / self.stop_s, 0.0, 1.0)
+        return np.pi * frac * frac * (3.0 - 2.0 * frac)
+
+    def poses(self, t: F64) -> F64:
+        """``world_from_body`` ``(N, 4, 4)`` at times ``t (N,)`` (seconds from the start)."""
+        t = np.asarray(t, dtype=np.float64)
+        d = self.travelled(t)
+        s = self.spec
+        pos = np.stack(
+            [self.axial(t), s.y0_m + self._wobble("y", d), s.z0_m + self._wobble("z", d)], axis=1
+        )
+        rot = (
+            rot_z(self.heading(t) + self._wobble("yaw", d))
+            @ rot_y(self._wobble("pitch", d))
+            @ rot_x(self._wobble("roll", d))
+        )
+        out = np.zeros((t.size, 4, 4))
+        out[:, :3, :3] = rot
+        out[:, :3, 3] = pos
+        out[:, 3, 3] = 1.0
+        return out

@@ -1,0 +1,391 @@
+"""Simulator tests: short corridors, few scans, seeded; every assertion has a known answer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_typestore
+
+from decod_rs.cli import main as cli_main
+from decod_rs.sim import Simulation, build_scene, drift_odometry, generate, simulate
+from decod_rs.sim.surface import Scene
+from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
+
+TS = get_typestore(Stores.ROS2_HUMBLE)
+# Short runs: 2 m out and back at 0.5 m/s is ~17 s of log (171 scans); 800 rays per scan.
+SHORT = {"length_m": 2.0, "speed_mps": 0.5, "sensor_overrides": {"rays_per_scan": 800}}
+
+
+def _tum(path: Path) -> np.ndarray:
+    return np.loadtxt(path, dtype=np.float64).reshape(-1, 8)
+
+
+def _quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@pytest.fixture(scope="module")
+def hume_log(tmp_path_factory: pytest.TempPathFactory):
+    out = tmp_path_factory.mktemp("hume")
+    res = simulate("hume", out, seed=3, drift=0.5, progress=False, **SHORT)
+    return res
+
+
+def test_log_has_types_counts_and_stamps(hume_log) -> None:
+    res = hume_log
+    assert res.log_dir == res.out_dir / "log"
+    assert (res.log_dir / "metadata.yaml").is_file()
+    with res.mcap_path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        channels = {c.id: c for c in summary.channels.values()}
+        schemas = {s.id: s for s in summary.schemas.values()}
+        types = {c.topic: schemas[c.schema_id].name for c in channels.values()}
+        assert types == {
+            "/points": "sensor_msgs/msg/PointCloud2",
+            "/odom": "nav_msgs/msg/Odometry",
+            "/imu": "sensor_msgs/msg/Imu",
+        }
+        assert all(c.message_encoding == "cdr" for c in channels.values())
+        counts = {
+            channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()
+        }
+        stamps: dict[str, list[int]] = {"/points": [], "/odom": [], "/imu": []}
+        first_cloud = None
+        first_odom = []
+        for _schema, channel, message in reader.iter_messages():
+            stamps[channel.topic].append(message.log_time)
+            if channel.topic == "/points" and first_cloud is None:
+                first_cloud = TS.deserialize_cdr(message.data, "sensor_msgs/msg/PointCloud2")
+            if channel.topic == "/odom":
+                first_odom.append(TS.deserialize_cdr(message.data, "nav_msgs/msg/Odometry"))
+    gt = _tum(res.gt_tum)
+    odom = _tum(res.odom_tum)
+    n = res.n_scans
+    assert counts == {"/points": n, "/odom": n, "/imu": res.n_imu}
+    assert gt.shape[0] == n and odom.shape[0] == n
+    # One scan and one odometry message per gt.tum stamp, at 10 Hz; IMU at 100 Hz.
+    scan_ns = np.array(stamps["/points"], dtype=np.int64)
+    assert np.array_equal(scan_ns, np.array(stamps["/odom"], dtype=np.int64))
+    assert np.all(np.diff(scan_ns) == 100_000_000)
+    assert np.allclose(scan_ns / 1e9, gt[:, 0], atol=1e-6, rtol=0)
+    imu_ns = np.array(stamps["/imu"], dtype=np.int64)
+    assert np.all(np.diff(imu_ns) == 10_000_000)
+    assert res.n_imu == pytest.approx(res.duration_s * 100 + 1, abs=1)
+    # The point cloud layout of the contract.
+    c = first_cloud
+    assert c is not None
+    assert [(f.name, f.offset, f.datatype) for f in c.fields] == [
+        ("x", 0, 7),
+        ("y", 4, 7),
+        ("z", 8, 7),
+        ("intensity", 12, 7),
+    ]
+    assert c.point_step == 16 and c.height == 1 and c.is_dense and not c.is_bigendian
+    assert c.header.frame_id == "body" and c.row_step == 16 * c.width
+    assert c.data.size == 16 * c.width and c.width > 400
+    # /odom carries the drifting odometry of odom.tum.
+    o = first_odom[-1]
+    assert o.header.frame_id == "odom" and o.child_frame_id == "body"
+    p = o.pose.pose.position
+    assert np.allclose([p.x, p.y, p.z], odom[-1, 1:4], atol=1e-5)
+    assert np.linalg.norm(odom[-1, 1:4] - gt[-1, 1:4]) == pytest.approx(0.5, abs=1e-5)
+
+
+def test_rosbags_reads_the_directory(hume_log) -> None:
+    with Reader(hume_log.log_dir) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        assert topics["/imu"] == "sensor_msgs/msg/Imu"
+        imu_conn = [c for c in reader.connections if c.topic == "/imu"]
+        msgs = [
+            TS.deserialize_cdr(raw, "sensor_msgs/msg/Imu")
+            for _, _, raw in reader.messages(connections=imu_conn)
+        ]
+    # At rest (first 1.5 s) the specific force is gravity negated, in the body frame:
+    # R^T (0, 0, 9.81) with R the ground-truth attitude (the crawler rests slightly rolled).
+    acc = np.array(
+        [
+            [m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z]
+            for m in msgs[:150]
+        ]
+    )
+    qx, qy, qz, qw = _tum(hume_log.gt_tum)[0, 4:8]
+    rot = _quat_to_matrix(qx, qy, qz, qw)
+    expected = rot.T @ np.array([0.0, 0.0, 9.81])
+    # Bias std 0.03 m/s^2 per axis (4 sigma = 0.12) + noise 0.02 / sqrt(150).
+    assert np.allclose(acc.mean(axis=0), expected, atol=0.13)
+    assert abs(np.linalg.norm(acc.mean(axis=0)) - 9.81) < 0.13
+    assert msgs[0].header.frame_id == "body" and msgs[0].orientation_covariance[0] == -1.0
+
+
+def _surface_residual(scene: Scene, pts: np.ndarray) -> np.ndarray:
+    """Distance (m) from world points to the nearest modelled surface: wall, floor, caps,
+    arch inner surfaces and faces."""
+    x, y, z = pts.T
+    th = np.arctan2(z, y)
+    res = [np.abs(np.hypot(y, z) - scene.radius_m - scene.wall_dr(x, th))]
+    if scene.floor_z_m is not None:
+        res.append(np.abs(z - scene.floor_z_m - scene.floor_dz(x, y)))
+    res.append(np.minimum(np.abs(x - scene.x_max_m), np.abs(x - scene.x_min_m)))
+    if scene.arches is not None:
+        a = scene.arches.nearest(x)
+        c = scene.arches.centre(a, th)
+        r_in = scene.arches.radius(a, th)
+        band = np.abs(x - c) <= scene.arches.half_width + 0.05
+        res.append(np.where(band, np.abs(np.hypot(y, z) - r_in), np.inf))
+        face = np.abs(np.abs(x - c) - scene.arches.half_width)
+        res.append(np.where(np.hypot(y, z) >= r_in - 0.05, face, np.inf))
+    return np.min(np.stack(res), axis=0)
+
+
+@pytest.mark.parametrize(
+    ("scene", "sensor", "length"),
+    [
+        ("hume", "avia", 2.0),
+        ("pe", "avia", 2.0),
+        ("shield", "spin16", 6.0),
+        ("horseshoe", "spin64", 6.0),
+    ],
+)
+def test_points_lie_on_the_surface(scene: str, sensor: str, length: float) -> None:
+    overrides = {"rays_per_scan": 3000} if sensor == "avia" else {"h_res_deg": 2.0}
+    data = generate(
+        scene,
+        seed=1,
+        length_m=length,
+        sensor=sensor,
+        sensor_overrides=overrides,
+        drift=3.0,
+        scan_indices=[0, 60, 90],
+    )
+    sigma = data.metadata["sensor"]["range_noise_m"]
+    for pts, pose in zip(data.points, data.gt_poses, strict=True):
+        world = pts.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+        r = _surface_residual(data.scene, world)
+        # The range noise is along the ray, so the distance to the surface is at most |noise|
+        # (+ float32 rounding of coordinates ~1e-6 m): 4 sigma keeps >= 99.9 % of Gaussian
+        # draws; allow 0.5 % for points snapped at groove/pocket edges.
+        assert np.mean(r < 4 * sigma + 1e-5) >= 0.995, (scene, np.percentile(r, [50, 99, 100]))
+    # The check can fail: the same points with the pose moved sideways by 10 sigma are off
+    # the surface. (An axial shift would not show in a uniform corridor: the degeneracy.)
+    bad = data.gt_poses[-1].copy()
+    bad[1, 3] += 10 * sigma
+    world = data.points[-1].astype(np.float64) @ bad[:3, :3].T + bad[:3, 3]
+    assert np.mean(_surface_residual(data.scene, world) < 4 * sigma + 1e-5) < 0.8
+
+
+@pytest.mark.parametrize("endpoint", [0.2, 1.7, 15.0])
+@pytest.mark.parametrize("mode", ["reverse", "turn"])
+def test_drift_gives_the_requested_endpoint_error(endpoint: float, mode: str) -> None:
+    spec = TrajectorySpec(x_start_m=0.5, length_m=60.0, speed_mps=0.4, return_mode=mode)
+    traj = Trajectory(spec, np.random.default_rng(0))
+    t = np.arange(0.0, traj.duration_s, 0.1)
+    gt = traj.poses(t)
+    dr = drift_odometry(gt, traj.travelled(t), endpoint, np.random.default_rng(7))
+    err = dr.odom_poses[:, :3, 3] - gt[:, :3, 3]
+    # Exact by construction (to float rounding).
+    assert np.linalg.norm(err[-1]) == pytest.approx(endpoint, rel=1e-9)
+    assert dr.endpoint_error_m == pytest.approx(endpoint, rel=1e-9)
+    # Mostly along the axis: lateral/vertical error at most 20 % of the endpoint error.
+    assert np.max(np.hypot(err[:, 1], err[:, 2])) <= 0.2 * endpoint + 1e-9
+    assert abs(err[-1, 0]) >= 0.97 * endpoint
+    # No drift at the start nor while standing still before moving.
+    still = t < spec.pre_s
+    assert np.allclose(dr.odom_poses[still], gt[still])
+
+
+def test_zero_drift_is_ground_truth() -> None:
+    sim = Simulation("pe", seed=2, length_m=2.0, speed_mps=0.5, drift="none")
+    assert np.array_equal(sim.drift.odom_poses, sim.gt_poses)
+
+
+def test_same_seed_same_log(tmp_path: Path) -> None:
+    kw = {"length_m": 1.5, "speed_mps": 0.5, "sensor_overrides": {"rays_per_scan": 300}}
+    a = simulate("pe", tmp_path / "a", seed=5, progress=False, **kw)
+    b = simulate("pe", tmp_path / "b", seed=5, progress=False, **kw)
+    c = simulate("pe", tmp_path / "c", seed=6, progress=False, **kw)
+    assert a.mcap_path.read_bytes() == b.mcap_path.read_bytes()
+    assert a.gt_tum.read_text() == b.gt_tum.read_text()
+    assert a.joints_json.read_text() == b.joints_json.read_text()
+    assert a.mcap_path.read_bytes() != c.mcap_path.read_bytes()
+
+
+def _cell_maps(scene: Scene, half: float, n_z: int = 16, n_p: int = 256) -> np.ndarray:
+    """Unrolled wall offset maps ``(J, n_z, n_p)`` of the interior joints, cell means over
+    the descriptor grid (+-``half`` axially, full circumference), 6 x 2 samples per cell."""
+    sub_z, sub_p = 6, 2
+    maps = []
+    inner = [
+        j
+        for j, x in enumerate(scene.joints_x_m)
+        if x - half - 1.0 > scene.x_min_m and x + half + 1.0 < scene.x_max_m
+    ]
+    for j in inner:
+        m = scene.joint_offset_map(j, half - half / (n_z * sub_z), n_z * sub_z, n_p * sub_p)
+        maps.append(m.reshape(n_z, sub_z, n_p, sub_p).mean(axis=(1, 3)))
+    return np.array(maps)
+
+
+@pytest.mark.parametrize(("scene", "half"), [("hume", 0.24), ("pe", 0.24), ("shield", 2.4)])
+def test_mean_profile_fails_where_the_2d_map_succeeds(scene: str, half: float) -> None:
+    sc = build_scene(scene, 0, 45.0)
+    maps = _cell_maps(sc, half)
+    n_j = maps.shape[0]
+    assert n_j >= 6
+    rng = np.random.default_rng(0)
+    # Two noisy observations of every joint: one range-noise draw per cell.
+    obs_a = maps + rng.normal(0.0, sc.range_noise_m, maps.shape)
+    obs_b = maps + rng.normal(0.0, sc.range_noise_m, maps.shape)
+    prof, prof_a, prof_b = maps.mean(axis=2), obs_a.mean(axis=2), obs_b.mean(axis=2)
+    iu = np.triu_indices(n_j, 1)
+    between = np.sqrt(((prof[:, None] - prof[None]) ** 2).mean(-1))[iu]
+    noise = np.sqrt(((prof_a - prof_b) ** 2).mean(-1))
+    # Mean profiles of different joints are closer than two noisy looks at one joint ...
+    assert np.median(between) < np.median(noise)
+    # ... so identifying a joint by its mean profile mostly fails ...
+    d_prof = ((prof_a[:, None] - prof_b[None]) ** 2).sum(-1)
+    assert np.mean(d_prof.argmin(axis=1) == np.arange(n_j)) <= 0.5
+    # ... while the full 2D maps identify (nearly) every joint.
+    d_map = ((obs_a[:, None] - obs_b[None]) ** 2).sum((-1, -2))
+    assert np.mean(d_map.argmin(axis=1) == np.arange(n_j)) >= 0.9
+
+
+@pytest.mark.parametrize("scene", ["hume", "pe", "shield", "horseshoe"])
+def test_identical_joints_are_identical(scene: str) -> None:
+    sc = build_scene(scene, 4, 30.0, identical_joints=True)
+    half = 0.24 if scene in ("hume", "pe") else 0.6
+    maps = _cell_maps(sc, half, n_z=8, n_p=64)
+    assert maps.shape[0] >= 3
+    assert np.max(np.abs(maps - maps[0])) < 1e-6
+    if sc.floor_z_m is not None:
+        # The floor beside every boundary repeats as well.
+        y = np.linspace(-1.5, 1.5, 31)
+        floors = [sc.floor_dz(x + np.zeros_like(y), y) for x in sc.joints_x_m[1:-1] + 0.3]
+        assert np.max(np.abs(np.array(floors) - floors[0])) < 1e-6
+    # Without the flag the joints differ by far more than that.
+    diff = _cell_maps(build_scene(scene, 4, 30.0), half, n_z=8, n_p=64)
+    assert np.max(np.abs(diff - diff[0])) > 1e-4
+
+
+def test_turn_rotates_heading_and_gyro_integrates_it() -> None:
+    sim = Simulation(
+        "shield",
+        seed=0,
+        length_m=6.0,
+        speed_mps=1.5,
+        return_mode="turn",
+        sensor_overrides={"h_res_deg": 4.0},
+    )
+    yaw = np.arctan2(sim.gt_poses[:, 1, 0], sim.gt_poses[:, 0, 0])
+    assert abs(yaw[0]) < 0.1 and abs(abs(yaw[-1]) - np.pi) < 0.1
+    imu = sim.imu
+    turn = (imu.t_s >= sim.traj.t_far_arrive - 0.5) & (imu.t_s <= sim.traj.t_return_start + 0.5)
+    # Gyro bias 0.5 mrad/s * 7 s and white noise are far below the 1 % tolerance.
+    assert np.sum(imu.gyro_radps[turn, 2]) / 100.0 == pytest.approx(np.pi, rel=0.01)
+
+
+def test_bad_input_is_named(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown scene"):
+        Simulation("sewer")
+    with pytest.raises(ValueError, match="drift"):
+        Simulation("hume", drift=-1.0, length_m=2.0)
+    with pytest.raises(ValueError, match="unknown sensor"):
+        Simulation("hume", sensor="hdl32", length_m=2.0)
+    with pytest.raises(ValueError, match="return_mode"):
+        Simulation("hume", return_mode="fly", length_m=2.0)
+    (tmp_path / "log").mkdir()
+    with pytest.raises(FileExistsError, match="log"):
+        simulate("hume", tmp_path, progress=False, **SHORT)
+
+
+def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rc = cli_main(
+        [
+            "simulate",
+            "pe",
+            "--out",
+            str(tmp_path),
+            "--length",
+            "1.5",
+            "--speed",
+            "0.5",
+            "--rays",
+            "200",
+            "--drift",
+            "low",
+            "--quiet",
+        ]
+    )
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "endpoint error 0.200 m" in out and "ms per scan" in out
+    assert (tmp_path / "joints.json").is_file() and (tmp_path / "log" / "metadata.yaml").is_file()
+
+
+def test_livox_custom_msg_and_ros1_bag(tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    res = simulate(
+        "pe",
+        tmp_path,
+        seed=1,
+        length_m=1.5,
+        speed_mps=0.5,
+        livox=True,
+        ros1=True,
+        sensor_overrides={"rays_per_scan": 200},
+        progress=False,
+    )
+    first_cloud = None
+    for path in (res.log_dir, res.out_dir / "log.bag"):
+        with AnyReader([path]) as reader:
+            counts = {c.topic: c.msgcount for c in reader.connections}
+            assert counts == {
+                "/points": res.n_scans,
+                "/odom": res.n_scans,
+                "/imu": res.n_imu,
+                "/livox/lidar": res.n_scans,
+            }
+            conns = [c for c in reader.connections if c.topic in ("/points", "/livox/lidar")]
+            msgs = {}
+            for conn, _, raw in reader.messages(connections=conns):
+                msgs.setdefault(conn.topic, reader.deserialize(raw, conn.msgtype))
+                if len(msgs) == 2:
+                    break
+        cloud = np.frombuffer(msgs["/points"].data, dtype="<f4").reshape(-1, 4)
+        custom = msgs["/livox/lidar"]
+        xyz = np.array([[p.x, p.y, p.z] for p in custom.points], dtype=np.float32)
+        # Same points in both messages and in both bag formats.
+        assert custom.point_num == cloud.shape[0] == xyz.shape[0]
+        assert np.array_equal(xyz, cloud[:, :3])
+        assert custom.timebase == msgs["/points"].header.stamp.sec * 10**9 + (
+            msgs["/points"].header.stamp.nanosec
+        )
+        if first_cloud is None:
+            first_cloud = cloud
+        assert np.array_equal(first_cloud, cloud)
+
+
+@pytest.mark.parametrize("scene", ["hume", "pe", "shield", "horseshoe"])
+def test_surface_lookups_do_not_depend_on_array_shape(scene: str) -> None:
+    sc = build_scene(scene, 2, 20.0)
+    rng = np.random.default_rng(0)
+    # Points concentrated around joints so the per-joint patches are exercised.
+    x = rng.choice(sc.joints_x_m, (40, 30)) + rng.normal(0.0, 0.03, (40, 30))
+    th = rng.uniform(-np.pi, np.pi, (40, 30))
+    grid = sc.wall_dr(x, th)
+    flat = sc.wall_dr(x.ravel(), th.ravel())
+    assert grid.shape == (40, 30)
+    assert np.array_equal(grid.ravel(), flat)
+    assert np.any(grid != 0.0)
