@@ -46,7 +46,8 @@ def print_summary(summary: RunSummary) -> None:
     rej = ", ".join(f"{k} {v}" for k, v in sorted(summary.rejections.items())) or "none"
     print(f"rejected       {rej}")
     print(
-        f"matching       {summary.mode} mode, {summary.queries} queries, {summary.accepted} accepted"
+        f"matching       {summary.mode} mode, {summary.queries} queries, "
+        f"{summary.accepted} accepted"
     )
     print(f"time           {stages}; {summary.realtime_factor:.0f}x real time")
     print(f"output         {summary.out_dir}")
