@@ -181,6 +181,14 @@ pub struct MatchingConfig {
     /// traversal). 0 (paper): every other eligible candidate competes. Keep it below the time
     /// the robot needs to travel one joint spacing, or identical joints stop competing.
     pub runner_up_exclusion_s: f64,
+    /// Count margin of the uniqueness test, in Poisson standard deviations: the best
+    /// candidate's inliers must exceed the runner-up's by `z * sqrt(K_best + K_runner_up)`.
+    /// The score ratio alone is blind to count noise: on the simulated aliased hume pipe
+    /// (identical joints) two wrong loops passed it with K = 9 against a runner-up K = 3
+    /// (ratio 2.6 and 2.9, z = 1.7) — exactly what true weak loops look like. With z = 2.5
+    /// both are rejected; on the distinct-joint hume pipe 60 of 69 true loops (all with
+    /// K >= 11) remain.
+    pub uniqueness_sigma: f64,
     /// Two database landmarks whose origins lie closer than this in the odometry frame,
     /// from submaps less than `min_time_separation_s` apart, are views of one physical
     /// boundary; `decod run` keeps only the best observed one, so a true loop is not
@@ -305,6 +313,7 @@ impl DecodConfig {
                 max_shift_z_cells: 3,
                 max_shift_p_cells: 16,
                 runner_up_exclusion_s: 0.0,
+                uniqueness_sigma: 2.5,
                 duplicate_radius_m: 0.4,
             },
             graph: GraphConfig {

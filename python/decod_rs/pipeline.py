@@ -219,6 +219,7 @@ def _loop_table(results: list[QueryResult]) -> LoopTable:
             "heading_deg": [f"{r.heading_deg:.0f}" for r in results],
             "dz_m": [f"{r.dz_m:.6f}" for r in results],
             "runner_up_score": [f"{r.runner_up_score:.6f}" for r in results],
+            "runner_up_inliers": [str(r.runner_up_inliers) for r in results],
             "eligible_candidates": [str(r.eligible) for r in results],
             "reason": [r.rejection or "" for r in results],
         },

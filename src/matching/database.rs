@@ -7,7 +7,8 @@
 //! apart and sharing no scan stamp.
 //!
 //! Acceptance: the best candidate (highest `S`, then `K`, then lowest index) is accepted iff
-//! `K >= min_inliers` AND it is unique: `S_best >= uniqueness_ratio * S_runner_up`, where the
+//! `K >= min_inliers` AND it is unique: `S_best >= uniqueness_ratio * S_runner_up` and
+//! `K_best - K_runner_up >= uniqueness_sigma * sqrt(K_best + K_runner_up)`, where the
 //! runner-up is the best score among all OTHER eligible candidates (optionally not those
 //! within `runner_up_exclusion_s` of the best, which may be a second view of the same joint).
 //! Identical precast joints score as high as the true joint (often higher), so no absolute
@@ -256,6 +257,14 @@ impl LandmarkDatabase {
     }
 }
 
+/// The uniqueness test: a score ratio over the runner-up, and an inlier margin beyond the
+/// counting noise of both (see `MatchingConfig::uniqueness_sigma`).
+fn is_unique(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> bool {
+    let (k_best, k_second) = (pair.inliers as f64, result.runner_up_inliers as f64);
+    pair.score >= cfg.uniqueness_ratio * result.runner_up_score
+        && k_best - k_second >= cfg.uniqueness_sigma * (k_best + k_second).sqrt()
+}
+
 /// Ranks the candidates and applies the acceptance rule (module docs).
 fn decide(
     query: &Landmark,
@@ -317,7 +326,7 @@ fn decide(
         Some(r)
     } else if pair.score <= 0.0 {
         Some(Rejection::TooFewInliers)
-    } else if cfg.verification && pair.score < cfg.uniqueness_ratio * result.runner_up_score {
+    } else if cfg.verification && !is_unique(pair, &result, cfg) {
         Some(Rejection::NotUnique)
     } else {
         None
