@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -48,20 +49,46 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    result, errors = evaluate_run(
+    evaluate_and_report(
         args.run_dir,
         args.gt,
-        joints_path=args.joints,
+        joints=args.joints,
         align=args.align,
         preset=args.preset,
         tolerances=tuple(args.tolerances) if args.tolerances else None,
+        out=args.out,
+        plots=not args.no_plots,
     )
-    out: Path = args.out or args.run_dir
+    return 0
+
+
+def evaluate_and_report(
+    run_dir: Path,
+    gt: Path,
+    *,
+    joints: Path | None = None,
+    align: bool = False,
+    preset: str | None = None,
+    tolerances: tuple[float, ...] | None = None,
+    out: Path | None = None,
+    plots: bool = True,
+) -> dict[str, Any]:
+    """Evaluate ``run_dir`` against ``gt``; write evaluation.json (+ plots) into ``out``
+    (default: the run directory), print the table, and return the evaluation document."""
+    result, errors = evaluate_run(
+        run_dir,
+        gt,
+        joints_path=joints,
+        align=align,
+        preset=preset,
+        tolerances=(tolerances[0], tolerances[1]) if tolerances else None,
+    )
+    out = out or run_dir
     out.mkdir(parents=True, exist_ok=True)
     (out / "evaluation.json").write_text(json.dumps(result, indent=2), encoding="utf-8")
     print(format_table(result))
     written = [out / "evaluation.json"]
-    if not args.no_plots:
+    if plots:
         written.append(
             plot_error_over_time(
                 out / "error_over_time.png",
@@ -77,10 +104,10 @@ def run(args: argparse.Namespace) -> int:
                 },
             )
         )
-        stamps, odom = read_tum(args.run_dir / "odometry.tum")
-        c_stamps, corrected = read_tum(args.run_dir / "corrected.tum")
+        stamps, odom = read_tum(run_dir / "odometry.tum")
+        c_stamps, corrected = read_tum(run_dir / "corrected.tum")
         if c_stamps.shape == stamps.shape and np.array_equal(c_stamps, stamps):
-            loops = read_loops_csv(args.run_dir / "loops.csv")
+            loops = read_loops_csv(run_dir / "loops.csv")
             pairs = [
                 (float(q), float(d))
                 for q, d, ok in zip(loops.query_stamp, loops.db_stamp, loops.accepted, strict=True)
@@ -93,8 +120,8 @@ def run(args: argparse.Namespace) -> int:
                     odom,
                     corrected,
                     pairs,
-                    ground_truth=read_tum(args.gt),
+                    ground_truth=read_tum(gt),
                 )
             )
     print("wrote " + ", ".join(str(p) for p in written))
-    return 0
+    return result
