@@ -27,6 +27,7 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.config import Config, load_config
 from decod_rs.graph import LoopConstraint, correct_trajectory
+from decod_rs.io import find_imu_topic
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
@@ -276,6 +277,7 @@ def run_log(
     odom_topic: str | None = None,
     odom_tum: str | Path | None = None,
     imu_topic: str | None = None,
+    use_imu: bool = True,
     mode: str = "auto",
     loops: bool = True,
     plots: bool = True,
@@ -283,8 +285,9 @@ def run_log(
 ) -> RunSummary:
     """Run DeCOD on ``log`` and write the contract's files into ``out_dir``.
 
-    ``loops=False`` disables loop closure (the output trajectory is then the odometry); the
-    matching still runs and is reported.
+    ``imu_topic=None`` takes the log's unique IMU topic if there is one (``use_imu=False``:
+    never; gravity is then the sensor's -z). ``loops=False`` disables loop closure (the
+    output trajectory is then the odometry); the matching still runs and is reported.
     """
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
@@ -293,6 +296,9 @@ def run_log(
     out.mkdir(parents=True, exist_ok=True)
     cfg = load_config(config_path, preset)
     timings: dict[str, float] = {}
+    if imu_topic is None and use_imu:
+        # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
+        imu_topic = find_imu_topic(log)
 
     t0 = time.perf_counter()
     processor, ex = _extract(
@@ -365,6 +371,7 @@ def run_log(
     report: dict[str, Any] = {
         "log": str(log),
         "points_topic": processor.points_topic,
+        "imu_topic": imu_topic,
         "preset": preset,
         "mode": used_mode,
         "split_stamp": split,

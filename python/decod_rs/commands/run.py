@@ -23,7 +23,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     odom = p.add_mutually_exclusive_group()
     odom.add_argument("--odom-topic", help="odometry topic (default: the unique one)")
     odom.add_argument("--odom-tum", type=Path, help="odometry as a TUM file instead of a topic")
-    p.add_argument("--imu-topic", help="IMU topic for gravity (default: the sensor's -z)")
+    imu = p.add_mutually_exclusive_group()
+    imu.add_argument("--imu-topic", help="IMU topic for gravity (default: the unique one)")
+    imu.add_argument(
+        "--no-imu", action="store_true", help="ignore IMUs: gravity is the sensor's -z axis"
+    )
     p.add_argument("--config", type=Path, help="TOML file overriding preset parameters")
     p.add_argument(
         "--mode",
@@ -63,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
         odom_topic=args.odom_topic,
         odom_tum=args.odom_tum,
         imu_topic=args.imu_topic,
+        use_imu=not args.no_imu,
         mode=args.mode,
         loops=not args.no_loops,
         plots=not args.no_plots,
