@@ -63,6 +63,7 @@ def test_hume_pipe_loops_are_precise_and_remove_the_drift(hume: Path, tmp_path: 
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     assert report["counts"]["accepted"] == fine["accepted"]
     assert set(report["timings_s"]) >= {"extract", "match", "optimise", "write"}
+    assert "EDGE_DECOD_LANDMARK5" in (tmp_path / "run" / "graph.g2o").read_text()
     assert (tmp_path / "run" / "trajectory.png").stat().st_size > 10_000
 
 

@@ -27,11 +27,12 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.config import Config, load_config
 from decod_rs.graph import LoopConstraint, correct_trajectory
+from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.io import find_imu_topic
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
-from decod_rs.tum import write_tum
+from decod_rs.tum import interpolate_poses, write_tum
 
 FloatArray = NDArray[np.float64]
 
@@ -343,6 +344,11 @@ def run_log(
             chainage_m=_chainage(lms, anchor_stamps, scan_stamps, correction.poses),
         ),
     )
+    # The graph on the submap anchors, for users who optimise elsewhere (g2o and JSON).
+    if anchor_stamps.size:
+        anchor_odom = interpolate_poses(scan_stamps, scan_odom, anchor_stamps)
+        write_g2o(out / "graph.g2o", anchor_odom, constraints, cfg.graph)
+        write_graph_json(out / "graph.json", anchor_odom, constraints, cfg.graph)
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
