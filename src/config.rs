@@ -197,11 +197,13 @@ pub struct MatchingConfig {
     /// seconds is accurate to centimetres; the value stays well below the boundary spacing
     /// (>= 1.2 m in tunnels, >= 1 m between pipe joints), so distinct boundaries never merge.
     pub duplicate_radius_m: f64,
-    /// Sigma, in columns, of the masked Gaussian smoothing of the normalised field along `p`
-    /// before keypoints and patches (`matching::normalise::smooth_along_p`); 0 = off (paper).
+    /// Sigma, metres of arc along the contour, of the masked Gaussian smoothing of the
+    /// normalised field along `p` before keypoints and patches
+    /// (`matching::normalise::smooth_along_p`; converted per landmark to columns with its
+    /// perimeter, because point spacing and texture size are physical); 0 = off (paper).
     /// Defaults to 0 when absent from a stored config.
     #[serde(default)]
-    pub field_smoothing_sigma_p_cells: f64,
+    pub field_smoothing_sigma_m: f64,
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
@@ -321,7 +323,7 @@ impl DecodConfig {
                 max_shift_p_cells: 16,
                 runner_up_exclusion_s: 0.0,
                 duplicate_radius_m: 0.4,
-                field_smoothing_sigma_p_cells: 0.0,
+                field_smoothing_sigma_m: 0.0,
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -383,11 +385,13 @@ impl DecodConfig {
         c.matching.runner_up_exclusion_s = 0.0;
         c.matching.duplicate_radius_m = 0.1;
         c.matching.uniqueness_ratio = 2.0;
-        // Pipe descriptors are sparse and noisy per cell (see `smooth_along_p`): sigma 2
-        // columns (1 cm of arc on a 0.4 m pipe). End to end, simulated pe (seed 2, drift
-        // 1.7 m): 0 -> 11 loops accepted, precision@1 (0.3 m) 100 %, endpoint 1.70 -> 0.014 m;
-        // simulated hume (seed 1): 69 -> 70 accepted, 100 %, endpoint 0.004 m unchanged.
-        c.matching.field_smoothing_sigma_p_cells = 2.0;
+        // Pipe descriptors are sparse and noisy per cell (see `smooth_along_p`): sigma 1 cm
+        // of arc (2.0 columns on the 0.4 m pe pipe, 1.4 on the 0.6 m hume pipe). End to end
+        // (simulated pe seed 2 / hume seed 1, drift 1.7 m, z tent binning on), loops
+        // accepted (all correct): sigma 0 -> pe 0, hume 69; 2 columns on both -> 13, 72;
+        // 1 cm -> 13, 75; 3 columns -> 13, 66 (too wide for hume's texture). Endpoint
+        // pe 1.70 -> 0.012 m.
+        c.matching.field_smoothing_sigma_m = 0.01;
         c
     }
 
@@ -488,9 +492,9 @@ impl DecodConfig {
             ),
             ("boundary.min_snr", self.boundary.min_snr >= 0.0),
             (
-                "matching.field_smoothing_sigma_p_cells",
-                self.matching.field_smoothing_sigma_p_cells.is_finite()
-                    && self.matching.field_smoothing_sigma_p_cells >= 0.0,
+                "matching.field_smoothing_sigma_m",
+                self.matching.field_smoothing_sigma_m.is_finite()
+                    && self.matching.field_smoothing_sigma_m >= 0.0,
             ),
             (
                 "boundary.min_strength_m",

@@ -131,13 +131,14 @@ impl PreparedLandmark {
         // Keypoints always come from the offsets' magnitudes; the sign-only ablation changes
         // what the patches compare, not where they are (a sign field has no extrema).
         let raw = normalise::normalised_field(d, Normalisation::from_config(cfg), false);
-        let (mut field, observed) = normalise::smooth_along_p(
-            &raw,
-            &d.observed,
-            d.rows,
-            d.cols,
-            cfg.field_smoothing_sigma_p_cells,
-        );
+        // Arc length to columns (validate() guarantees a positive perimeter).
+        let sigma_p_cells = if d.perimeter_m > 0.0 {
+            cfg.field_smoothing_sigma_m * d.cols as f64 / d.perimeter_m
+        } else {
+            0.0
+        };
+        let (mut field, observed) =
+            normalise::smooth_along_p(&raw, &d.observed, d.rows, d.cols, sigma_p_cells);
         let keypoints = keypoints::detect(&field, &observed, d.rows, d.cols, cfg, |r, c| {
             shape.coverage(&observed, grid, r, c)
         });

@@ -104,7 +104,9 @@ fn scale_only(d: &Descriptor) -> Vec<f64> {
 /// the axis (a groove fills one or two rows), so only `p` is smoothed. Measured on the
 /// simulated `pe` pipe (groove rows, best shift): the correlation of two views of the same
 /// coupler rose from 0.25 (raw) to 0.50 at sigma 4 columns while different couplers stayed
-/// at 0.19.
+/// at 0.19; with the pipe preset (1 cm of arc = 2 columns, z tent binning) well-observed
+/// same-coupler pairs (> 55 % of cells observed) went from median K 3 to 9, different
+/// couplers stayed at K <= 5.
 pub fn smooth_along_p(
     field: &[f64],
     observed: &[bool],
