@@ -51,25 +51,42 @@ pub fn build_descriptor(
     let half = cfg.half_length_m;
     let cell_z = 2.0 * half / rows as f64;
     let mut sum = vec![0.0; rows * cols];
-    let mut count = vec![0u32; rows * cols];
+    // Summed point weights per cell (1 per point with box binning).
+    let mut weight = vec![0.0f64; rows * cols];
     for q in points {
         let dz = q.z - z_origin + half;
         if !(0.0..2.0 * half).contains(&dz) {
             continue;
         }
-        let r = ((dz / cell_z) as usize).min(rows - 1);
         let c = ((q.p * cols as f64) as usize).min(cols - 1);
-        sum[r * cols + c] += q.s;
-        count[r * cols + c] += 1;
+        if cfg.axial_interpolation {
+            // Linear (tent) weights between the two nearest row centres; clamped at the ends.
+            let u = (dz / cell_z - 0.5).clamp(0.0, (rows - 1) as f64);
+            let r0 = (u.floor() as usize).min(rows - 1);
+            let r1 = (r0 + 1).min(rows - 1);
+            let f = u - r0 as f64;
+            sum[r0 * cols + c] += (1.0 - f) * q.s;
+            weight[r0 * cols + c] += 1.0 - f;
+            sum[r1 * cols + c] += f * q.s;
+            weight[r1 * cols + c] += f;
+        } else {
+            let r = ((dz / cell_z) as usize).min(rows - 1);
+            sum[r * cols + c] += q.s;
+            weight[r * cols + c] += 1.0;
+        }
     }
-    let min_points = cfg.min_points_per_cell.max(1) as u32;
+    // With tent weights one point spreads weight 1 over two rows; requiring half of
+    // `min_points_per_cell` lets a single point observe (exactly) its nearer row, as it
+    // observes its own row with box binning.
+    let min_weight =
+        cfg.min_points_per_cell.max(1) as f64 * if cfg.axial_interpolation { 0.5 } else { 1.0 };
     let mut observed = vec![false; rows * cols];
     for r in 0..rows {
         for (c, &masked_column) in masked.iter().enumerate().take(cols) {
             let i = r * cols + c;
-            if count[i] >= min_points && !masked_column {
+            if weight[i] >= min_weight && !masked_column {
                 observed[i] = true;
-                sum[i] /= count[i] as f64;
+                sum[i] /= weight[i];
             } else {
                 sum[i] = 0.0;
             }
@@ -119,5 +136,44 @@ mod tests {
         assert!((d.offsets_m[i] - 0.01 * 128.5 / 256.0).abs() < 1e-4);
         assert!(!d.observed[d.index(3, 0)]);
         assert!((d.normal_e1[0] - 1.0).abs() < 1e-3 && (d.normal_e2[64] - 1.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn axial_interpolation_splits_points_between_row_centres() {
+        let mut cfg = DecodConfig::pipe().descriptor;
+        cfg.axial_interpolation = true;
+        let contour = ReferenceContour::circle([0.0, 0.0], 0.2);
+        let columns = column_samples(&contour, cfg.cols);
+        let masked = vec![false; cfg.cols];
+        let cell = 2.0 * cfg.half_length_m / cfg.rows as f64;
+        let row_centre = |r: usize| -cfg.half_length_m + (r as f64 + 0.5) * cell;
+        let p = 100.5 / cfg.cols as f64;
+        let pts = [
+            // At the centre of row 4: all of its weight there.
+            ChartPoint {
+                z: row_centre(4),
+                p,
+                s: 0.002,
+            },
+            // A quarter cell above the centre of row 8: weight 3/4 on row 8, 1/4 on row 9.
+            ChartPoint {
+                z: row_centre(8) + 0.25 * cell,
+                p,
+                s: 0.004,
+            },
+            ChartPoint {
+                z: row_centre(9),
+                p,
+                s: -0.004,
+            },
+        ];
+        let d = build_descriptor(&pts, 0.0, &contour, &columns, &masked, &cfg);
+        let at = |r: usize| d.offsets_m[d.index(r, 100)];
+        assert!(d.observed[d.index(4, 100)] && (at(4) - 0.002).abs() < 1e-12);
+        assert!(!d.observed[d.index(3, 100)] && !d.observed[d.index(5, 100)]);
+        // Row 8 holds only the second point (weight 3/4 >= 1/2).
+        assert!((at(8) - 0.004).abs() < 1e-12);
+        // Row 9: (1/4 * 0.004 + 1 * -0.004) / (5/4).
+        assert!((at(9) - (0.25 * 0.004 - 0.004) / 1.25).abs() < 1e-12);
     }
 }

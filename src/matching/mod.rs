@@ -98,8 +98,11 @@ pub struct PairResult {
 pub struct PreparedLandmark {
     /// The landmark.
     pub landmark: Arc<Landmark>,
-    /// Observed mask as a bitset (bit `i` = flat cell `i`), heading 0.
+    /// Observed mask as a bitset (bit `i` = flat cell `i`), heading 0 (after
+    /// [`normalise::smooth_along_p`] filled isolated gaps, if enabled).
     observed_bits: Vec<u64>,
+    /// The same mask under the heading flip (flat reversal).
+    flipped_bits: Vec<u64>,
     /// Keypoints (heading 0), strongest first.
     pub keypoints: Vec<Keypoint>,
     /// Candidate GEMM factor of the keypoints' patches.
@@ -127,21 +130,30 @@ impl PreparedLandmark {
         let grid = (d.rows, d.cols);
         // Keypoints always come from the offsets' magnitudes; the sign-only ablation changes
         // what the patches compare, not where they are (a sign field has no extrema).
-        let field = normalise::normalised_field(d, Normalisation::from_config(cfg), false);
-        let keypoints = keypoints::detect(&field, &d.observed, d.rows, d.cols, cfg, |r, c| {
-            shape.coverage(&d.observed, grid, r, c)
-        });
-        let field = if cfg.sign_only {
-            normalise::normalised_field(d, Normalisation::from_config(cfg), true)
+        let raw = normalise::normalised_field(d, Normalisation::from_config(cfg), false);
+        // Arc length to columns (validate() guarantees a positive perimeter).
+        let sigma_p_cells = if d.perimeter_m > 0.0 {
+            cfg.field_smoothing_sigma_m * d.cols as f64 / d.perimeter_m
         } else {
-            field
+            0.0
         };
+        let (mut field, observed) =
+            normalise::smooth_along_p(&raw, &d.observed, d.rows, d.cols, sigma_p_cells);
+        let keypoints = keypoints::detect(&field, &observed, d.rows, d.cols, cfg, |r, c| {
+            shape.coverage(&observed, grid, r, c)
+        });
+        if cfg.sign_only {
+            for (v, &o) in field.iter_mut().zip(&observed) {
+                *v = if !o || *v == 0.0 { 0.0 } else { v.signum() };
+            }
+        }
         let patches: Vec<_> = keypoints
             .iter()
-            .map(|kp| shape.extract(&field, &d.observed, grid, kp))
+            .map(|kp| shape.extract(&field, &observed, grid, kp))
             .collect();
         Ok(Self {
-            observed_bits: bitset(d.observed.iter().copied()),
+            observed_bits: bitset(observed.iter().copied()),
+            flipped_bits: bitset(observed.iter().rev().copied()),
             keypoints,
             patches: CandidatePatches::new(shape, &patches),
             landmark,
@@ -170,7 +182,7 @@ impl QuerySide {
                 QueryPatches::from_candidate(shape, &p.patches, false),
                 QueryPatches::from_candidate(shape, &p.patches, true),
             ],
-            flipped_bits: bitset(p.landmark.descriptor.observed.iter().rev().copied()),
+            flipped_bits: p.flipped_bits.clone(),
         }
     }
 }

@@ -87,6 +87,69 @@ fn scale_only(d: &Descriptor) -> Vec<f64> {
     masked(d, |_, v| (v - mean) * scale)
 }
 
+/// Masked Gaussian smoothing of a normalised `field` along `p` only (row-major
+/// `rows x cols`, circular in `p`, sigma in columns): normalised convolution
+/// `G * (m F) / G * m`. Returns the smoothed field and its mask: a cell is observed when at
+/// least half of the kernel weight around it was observed, so isolated empty cells between
+/// observed ones are filled and the edges of large gaps (the masked bottom sector) stay put;
+/// unobserved cells hold 0. `sigma <= 0` returns the inputs unchanged.
+///
+/// Why (the paper is silent): a cell holds the mean of the few points that fell in it. Where
+/// points are sparse (a 4.9 mm x 30 mm cell on a 0.4 m pipe gets a handful of returns at
+/// 1.5 mm range noise, and ~40 % of the cells get none, in stripes along the axis) the
+/// cell-to-cell noise exceeds the texture, keypoints land on noise maxima, and two sparse
+/// masks rarely leave half of a patch mutually observed, so most patch distances are
+/// infinite. Joint texture varies smoothly around the circumference (groove depth, width
+/// and centre harmonics, lip eccentricity, chips centimetres of arc wide) but sharply along
+/// the axis (a groove fills one or two rows), so only `p` is smoothed. Measured on the
+/// simulated `pe` pipe (groove rows, best shift): the correlation of two views of the same
+/// coupler rose from 0.25 (raw) to 0.50 at sigma 4 columns while different couplers stayed
+/// at 0.19; with the pipe preset (1 cm of arc = 2 columns, z tent binning) well-observed
+/// same-coupler pairs (> 55 % of cells observed) went from median K 3 to 9, different
+/// couplers stayed at K <= 5.
+pub fn smooth_along_p(
+    field: &[f64],
+    observed: &[bool],
+    rows: usize,
+    cols: usize,
+    sigma: f64,
+) -> (Vec<f64>, Vec<bool>) {
+    if sigma <= 0.0 || cols == 0 {
+        return (field.to_vec(), observed.to_vec());
+    }
+    let half = ((3.0 * sigma).ceil() as usize).min(cols / 2);
+    let kernel: Vec<f64> = (0..=half)
+        .map(|k| (-((k * k) as f64) / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let total: f64 = kernel[0] + 2.0 * kernel[1..].iter().sum::<f64>();
+    let mut out = vec![0.0; rows * cols];
+    let mut mask = vec![false; rows * cols];
+    for r in 0..rows {
+        let row = r * cols..(r + 1) * cols;
+        let (f, m) = (&field[row.clone()], &observed[row]);
+        for c in 0..cols {
+            let (mut n, mut d) = (0.0, 0.0);
+            for (k, w) in kernel.iter().enumerate() {
+                let mut add = |cc: usize| {
+                    if m[cc] {
+                        n += w * f[cc];
+                        d += w;
+                    }
+                };
+                add((c + k) % cols);
+                if k > 0 {
+                    add((c + cols - k) % cols);
+                }
+            }
+            if d >= 0.5 * total {
+                out[r * cols + c] = n / d;
+                mask[r * cols + c] = true;
+            }
+        }
+    }
+    (out, mask)
+}
+
 /// Axial coordinate of row `r`'s centre relative to the landmark origin, metres.
 #[inline]
 pub fn row_z_m(d: &Descriptor, r: usize) -> f64 {
@@ -302,5 +365,43 @@ mod tests {
         let raw: Vec<f64> = masked(&d, |_, v| v);
         let kept = energy(&field) / energy(&raw);
         assert!(kept > 0.8, "kept {kept}");
+    }
+
+    #[test]
+    fn smoothing_along_p_denoises_fills_small_gaps_and_keeps_large_ones() {
+        let (rows, cols) = (4, 128);
+        let tau = std::f64::consts::TAU;
+        // Smooth texture (3rd harmonic, 1 mm) plus alternating +-1 mm cell noise; every
+        // fifth column empty, columns 100..128 a large gap.
+        let truth = |c: usize| 0.001 * (3.0 * tau * c as f64 / cols as f64).sin();
+        let mut field = vec![0.0; rows * cols];
+        let mut observed = vec![false; rows * cols];
+        for r in 0..rows {
+            for c in 0..100 {
+                if c % 5 != 4 {
+                    let noise = if (r + c) % 2 == 0 { 0.001 } else { -0.001 };
+                    field[r * cols + c] = truth(c) + noise;
+                    observed[r * cols + c] = true;
+                }
+            }
+        }
+        let (out, mask) = smooth_along_p(&field, &observed, rows, cols, 2.0);
+        // Interior gap cells are filled; deep inside the large gap nothing is invented.
+        assert!(mask[cols + 49] && mask[cols + 50]);
+        assert!(!mask[cols + 114]);
+        // Away from the large gap the +-1 mm cell noise (RMS 1 mm) mostly cancels: the
+        // pattern is alternating except across the empty columns, and a sigma-2 Gaussian
+        // leaves the 3rd harmonic (wavelength 43 columns) within 5 %, so the RMS error must
+        // drop below a third of the noise.
+        let rms = ((10..90)
+            .map(|c| (out[cols + c] - truth(c)).powi(2))
+            .sum::<f64>()
+            / 80.0)
+            .sqrt();
+        assert!(rms < 3e-4, "RMS error {rms}");
+        // Off means unchanged.
+        let (same, same_mask) = smooth_along_p(&field, &observed, rows, cols, 0.0);
+        assert_eq!(same, field);
+        assert_eq!(same_mask, observed);
     }
 }
