@@ -194,11 +194,10 @@ pub struct MatchingConfig {
     /// candidate's inliers must exceed the runner-up's by `z * sqrt(K_best + K_runner_up)`.
     /// The score ratio alone is blind to count noise: on the simulated aliased hume pipe
     /// (identical joints) two wrong loops passed it with K = 9 against a runner-up K = 3
-    /// (ratio 2.6 and 2.9, z = 1.7) — exactly what true weak loops look like — and a third
-    /// at K = 13 against 3 (z = 2.5) between two submaps taken while the crawler stood still
-    /// at either end (the same sensor-relative coverage pattern correlates). z = 3 rejects
-    /// all three; on the distinct-joint hume pipe the true loops kept are those with
-    /// K >= 13 or so (54 of 69 kept, every one correct; endpoint error 1.70 m -> 0.004 m).
+    /// (ratio 2.6 and 2.9, z = 1.7), exactly what true weak loops look like. z = 2.5 rejects
+    /// them; stronger aliased loops (z up to 3.2 seen) are left to corroboration
+    /// (`min_corroborating_loops`), since raising z to 3 halved pe recall (10 -> 2 loops)
+    /// for no gain once corroboration is on. Kept true loops on the 60 m hume pipe: 67.
     pub uniqueness_sigma: f64,
     /// Two database landmarks whose origins lie closer than this in the odometry frame,
     /// from submaps less than `min_time_separation_s` apart, are views of one physical
@@ -214,6 +213,25 @@ pub struct MatchingConfig {
     /// Defaults to 0 when absent from a stored config.
     #[serde(default)]
     pub field_smoothing_sigma_m: f64,
+    /// Corroboration (`decod run`): an accepted loop is kept only if at least this many other
+    /// accepted loops imply the same odometry correction (0 disables). A loop to the wrong
+    /// one of several identical joints implies a correction off by one joint spacing; true
+    /// loops agree with their neighbours. On the simulated aliased hume pipe (seed 5) one
+    /// wrong loop with K = 15 against a runner-up K = 2 passed every per-query test — the
+    /// query and the wrong joint had been seen from the same distance, and sensor-relative
+    /// artefacts correlated — and only its isolation gave it away.
+    pub min_corroborating_loops: usize,
+    /// Two loops corroborate each other when their implied corrections (database minus query
+    /// landmark position, in the odometry frame) differ by less than this plus
+    /// `consistency_drift_fraction` of the path between them, metres. Must stay below half
+    /// the boundary spacing so a neighbouring identical joint never corroborates.
+    pub consistency_tolerance_m: f64,
+    /// Odometry drift allowed per metre of path between two corroborating loops.
+    pub consistency_drift_fraction: f64,
+    /// Only loops whose anchors lie within this path length (query and database sides
+    /// together) of each other can corroborate, which caps the allowance at
+    /// `consistency_tolerance_m + consistency_drift_fraction * consistency_window_m`.
+    pub consistency_window_m: f64,
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
@@ -332,8 +350,12 @@ impl DecodConfig {
                 max_shift_z_cells: 3,
                 max_shift_p_cells: 16,
                 runner_up_exclusion_s: 0.0,
-                uniqueness_sigma: 3.0,
+                uniqueness_sigma: 2.5,
                 duplicate_radius_m: 0.4,
+                min_corroborating_loops: 1,
+                consistency_tolerance_m: 0.3,
+                consistency_drift_fraction: 0.05,
+                consistency_window_m: 8.0,
                 field_smoothing_sigma_m: 0.0,
             },
             graph: GraphConfig {
@@ -395,6 +417,8 @@ impl DecodConfig {
         c.matching.max_shift_p_cells = 16;
         c.matching.runner_up_exclusion_s = 0.0;
         c.matching.duplicate_radius_m = 0.1;
+        // Allowance capped at 0.3 + 0.05 * 12 = 0.9 m, below half the hume joint spacing.
+        c.matching.consistency_window_m = 12.0;
         c.matching.uniqueness_ratio = 2.0;
         // Pipe descriptors are sparse and noisy per cell (see `smooth_along_p`): sigma 1 cm
         // of arc (2.0 columns on the 0.4 m pe pipe, 1.4 on the 0.6 m hume pipe). End to end

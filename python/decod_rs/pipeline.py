@@ -193,7 +193,56 @@ def _effective_db_origin(result: QueryResult) -> FloatArray:
     )
 
 
-def _loop_table(results: list[QueryResult]) -> LoopTable:
+def _corroborated(
+    results: list[QueryResult],
+    anchors: dict[float, FloatArray],
+    scan_stamps: FloatArray,
+    scan_odom: FloatArray,
+    cfg: Config,
+) -> list[bool]:
+    """For every result, whether it may stay accepted: an accepted loop needs
+    ``min_corroborating_loops`` other accepted loops (of other query boundaries) nearby that
+    imply the same odometry correction (``MatchingConfig`` doc). Not accepted: False."""
+    m = cfg.matching
+    accepted = [k for k, r in enumerate(results) if r.accepted]
+    if m.min_corroborating_loops <= 0:
+        return [r.accepted for r in results]
+    steps = np.linalg.norm(np.diff(scan_odom[:, :3, 3], axis=0), axis=1)
+    path = np.concatenate([[0.0], np.cumsum(steps)])
+
+    def along(stamp: float) -> float:
+        return float(np.interp(stamp, scan_stamps, path))
+
+    def world(stamp: float, point: FloatArray) -> FloatArray:
+        pose = anchors[stamp]
+        return np.asarray(pose[:3, :3] @ point + pose[:3, 3], dtype=np.float64)
+
+    info = {}
+    for k in accepted:
+        r = results[k]
+        correction = world(r.candidate_stamp, _effective_db_origin(r)) - world(
+            r.query_stamp, np.asarray(r.query_origin, dtype=np.float64)
+        )
+        info[k] = (correction, along(r.query_stamp), along(r.candidate_stamp), r.query_stamp)
+    keep = [False] * len(results)
+    for k in accepted:
+        ck, qk, dk, tk = info[k]
+        support = 0
+        for j in accepted:
+            cj, qj, dj, tj = info[j]
+            if j == k or tj == tk:
+                continue  # another view of the same query submap is not independent
+            separation = abs(qk - qj) + abs(dk - dj)
+            if separation > m.consistency_window_m:
+                continue
+            allowance = m.consistency_tolerance_m + m.consistency_drift_fraction * separation
+            if float(np.linalg.norm(ck - cj)) <= allowance:
+                support += 1
+        keep[k] = support >= m.min_corroborating_loops
+    return keep
+
+
+def _loop_table(results: list[QueryResult], keep: list[bool]) -> LoopTable:
     n = len(results)
     nan3 = np.full(3, np.nan)
 
@@ -216,19 +265,24 @@ def _loop_table(results: list[QueryResult]) -> LoopTable:
         db_axis=np.array([vec(r, "candidate_axis") for r in results]).reshape(n, 3),
         inliers=np.array([r.inliers for r in results], dtype=np.int64),
         score=np.array([r.score for r in results], dtype=np.float64),
-        accepted=np.array([r.accepted for r in results], dtype=bool),
+        accepted=np.array(keep, dtype=bool),
         extra={
             "heading_deg": [f"{r.heading_deg:.0f}" for r in results],
             "dz_m": [f"{r.dz_m:.6f}" for r in results],
             "runner_up_score": [f"{r.runner_up_score:.6f}" for r in results],
             "runner_up_inliers": [str(r.runner_up_inliers) for r in results],
             "eligible_candidates": [str(r.eligible) for r in results],
-            "reason": [r.rejection or "" for r in results],
+            "reason": [
+                r.rejection or ("" if ok else "uncorroborated")
+                for r, ok in zip(results, keep, strict=True)
+            ],
         },
     )
 
 
-def _constraints(results: list[QueryResult], anchor_stamps: FloatArray) -> list[LoopConstraint]:
+def _constraints(
+    results: list[QueryResult], keep: list[bool], anchor_stamps: FloatArray
+) -> list[LoopConstraint]:
     def index(stamp: float) -> int:
         return int(np.argmin(np.abs(anchor_stamps - stamp)))
 
@@ -243,8 +297,8 @@ def _constraints(results: list[QueryResult], anchor_stamps: FloatArray) -> list[
             inliers=r.inliers,
             score=r.score,
         )
-        for r in results
-        if r.accepted
+        for r, ok in zip(results, keep, strict=True)
+        if ok
     ]
 
 
@@ -322,17 +376,18 @@ def run_log(
     split = _split_stamp(scan_stamps, scan_odom)
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
     results, used_mode, db_size = _match(ex.landmarks, anchors, cfg, mode, split)
+    keep = _corroborated(results, anchors, scan_stamps, scan_odom, cfg)
     timings["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    constraints = _constraints(results, anchor_stamps) if loops else []
+    constraints = _constraints(results, keep, anchor_stamps) if loops else []
     correction = correct_trajectory(scan_stamps, scan_odom, anchor_stamps, constraints, cfg.graph)
     timings["optimise"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
     write_tum(out / "corrected.tum", scan_stamps, correction.poses)
-    write_loops_csv(out / "loops.csv", _loop_table(results))
+    write_loops_csv(out / "loops.csv", _loop_table(results, keep))
     lms = ex.landmarks
     write_landmarks_csv(
         out / "landmarks.csv",
@@ -352,14 +407,15 @@ def run_log(
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
-        _plots(out, scan_stamps, scan_odom, correction.poses, results, lms)
+        kept = [r for r, ok in zip(results, keep, strict=True) if ok]
+        _plots(out, scan_stamps, scan_odom, correction.poses, kept, lms)
         timings["plots"] = time.perf_counter() - t0
 
-    accepted = sum(r.accepted for r in results)
+    accepted = sum(keep)
     reasons: dict[str, int] = {}
-    for r in results:
-        if not r.accepted:
-            key = r.rejection or "unknown"
+    for r, ok in zip(results, keep, strict=True):
+        if not ok:
+            key = r.rejection or ("uncorroborated" if r.accepted else "unknown")
             reasons[key] = reasons.get(key, 0) + 1
     summary = RunSummary(
         out_dir=out,
@@ -426,7 +482,7 @@ def _plots(
 ) -> None:
     from decod_rs.plots import plot_descriptor_pair, plot_trajectories
 
-    accepted = [r for r in results if r.accepted]
+    accepted = results  # the loops kept
     plot_trajectories(
         out / "trajectory.png",
         stamps,
