@@ -135,10 +135,16 @@ fn aliased_corridor_yields_no_accepted_loop() {
     let mut rng = Rng::new(11);
     // Five identical precast joints (same geometry, different noise and views).
     let db = corridor(&[7; 5], &mut rng);
+    // The paper's trajectory threshold (9), not the tunnel preset's 16: aliased pairs reach
+    // K = 13 here, and it is the uniqueness test, not the count, that must reject them.
+    let cfg = MatchingConfig {
+        min_inliers: 9,
+        ..cfg()
+    };
     for t in 0..4 {
         let obs = Observation::random(&Grid::tunnel(), 1000.0 + t as f64, t % 2 == 1, &mut rng);
         let q = joint(3, 7).observe(&obs, 50 + t);
-        let r = db.query(&q, &cfg()).unwrap();
+        let r = db.query(&q, &cfg).unwrap();
         let ratio = r.pair.as_ref().unwrap().score / r.runner_up_score;
         eprintln!(
             "aliased: best/runner-up = {ratio:.3} (K {} vs {})",
