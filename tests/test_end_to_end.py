@@ -4,7 +4,8 @@ the Rust reader, through extraction, matching, the GTSAM graph and the evaluatio
 What a user relies on (issue 6): precision@1 >= 90 % at the fine tolerance, the endpoint
 error reduced by >= 80 % when odometry drifted >= 1 m, no accepted wrong loop on an aliased
 pipe (identical joints), and the odometry returned unchanged when loops are disabled. Logs
-are kept short (30 m one way) so the module runs in about a minute on two cores.
+are short (30 m one way; 60 m for pe and shield, whose loops are sparser) so the module
+runs in about two minutes on two cores.
 """
 
 from __future__ import annotations
@@ -95,3 +96,26 @@ def test_aliased_pipe_yields_no_wrong_loop(tmp_path_factory: pytest.TempPathFact
     result = _run(sim, sim.parent / "run", "pipe", plots=False)
     for tolerance in ("fine", "coarse"):
         assert result["loops"][tolerance]["false_positives"] == 0, result["loops"]
+
+
+@pytest.mark.parametrize(
+    ("scene", "preset", "options"),
+    [
+        # Ribbed polyethylene pipe: ribs every 3.5 cm must not pass for couplers (every 6 m).
+        ("pe", "pipe", {"seed": 2, "length_m": 60.0}),
+        # Shield tunnel, Ouster-like 64-beam sensor, heading reversed by a turn at the far end.
+        ("shield", "tunnel", {"seed": 5, "length_m": 60.0, "sensor": "spin64"}),
+    ],
+)
+def test_pe_pipe_and_shield_tunnel_with_a_turn(
+    scene: str, preset: str, options: dict, tmp_path: Path
+) -> None:
+    sim = tmp_path / "sim"
+    simulate(scene, sim, progress=False, drift=1.7, **options)
+    result = _run(sim, tmp_path / "run", preset, plots=False)
+    fine = result["loops"]["fine"]
+    assert fine["accepted"] >= 3, fine
+    assert fine["precision_at_1"] >= 0.9, fine
+    traj = result["trajectory"]
+    assert traj["odometry"]["endpoint_error_m"] >= 1.0
+    assert traj["endpoint_reduction_percent"] >= 80.0, traj

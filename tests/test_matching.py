@@ -65,8 +65,8 @@ def test_batch_query_finds_the_right_joints_and_carries_factor_data() -> None:
     ]
     results = db.query_batch(queries)
     # The top-1 is right for every query; a weak one may still be refused by the count margin
-    # of the uniqueness test (uniqueness_sigma = 3), never accepted wrongly.
-    assert sum(r.accepted for r in results) >= 4  # 8 of 8 at 2 sigma, 4 at 3 sigma (seed 3)
+    # of the uniqueness test (uniqueness_sigma), never accepted wrongly.
+    assert sum(r.accepted for r in results) >= 6  # 8 of 8 at 2.5 sigma, 4 at 3 (seed 3)
     for k, r in enumerate(results):
         assert r.candidate_index == k
         assert r.accepted or r.rejection == "not_unique", r
