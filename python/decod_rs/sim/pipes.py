@@ -109,6 +109,44 @@ def _stack(tables: list[np.ndarray], n_u: int, n_t: int) -> np.ndarray:
     return np.stack(tables).astype(np.float32)
 
 
+def _joint_patches(
+    rng: np.random.Generator,
+    p: dict[str, Any],
+    kind: str,
+    joints: np.ndarray,
+    th: np.ndarray,
+    distinct: float,
+    identical: bool,
+) -> PatchSet:
+    """One groove table per joint, +-5 cm around it, from the ``{kind}_depth_m`` ...
+    ``{kind}_centre_var_m`` parameters (hume grooves, pe coupler gaps); identical joints
+    share one table."""
+    half = 0.05
+    u = np.linspace(-half, half, 101)
+
+    def one(g: np.random.Generator) -> np.ndarray:
+        return _groove_table(
+            g,
+            u,
+            th,
+            p[f"{kind}_depth_m"],
+            p[f"{kind}_width_m"],
+            distinct,
+            p[f"{kind}_depth_var_m"],
+            p[f"{kind}_width_var_m"],
+            p[f"{kind}_centre_var_m"],
+            p["chips_per_joint"],
+            tuple(p["chip_depth_m"]),
+        )
+
+    if identical:
+        table = one(rng)
+        tables = [table for _ in joints]
+    else:
+        tables = [one(rng) for _ in joints]
+    return PatchSet(joints, half, _stack(tables, u.size, th.size))
+
+
 def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identical: bool) -> Scene:
     """Precast concrete pipe: 0.6 m ID, 2.43 m segments, annular joint grooves (~4 mm deep,
     ~16 mm wide, varying around), eccentric lips (~1.5 mm), chipped edges, occasional lateral
@@ -139,31 +177,8 @@ def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identica
     seg = p["segment_length_m"]
     jitter = 0.0 if identical else p["joint_position_jitter_m"] * distinct
     joints = _joint_positions(rng, p["first_joint_x_m"], seg, x_max, jitter)
-    half = 0.05
-    u = np.linspace(-half, half, 101)
     th = theta_grid(N_THETA_PATCH)
-
-    def one_groove(g: np.random.Generator) -> np.ndarray:
-        return _groove_table(
-            g,
-            u,
-            th,
-            p["groove_depth_m"],
-            p["groove_width_m"],
-            distinct,
-            p["groove_depth_var_m"],
-            p["groove_width_var_m"],
-            p["groove_centre_var_m"],
-            p["chips_per_joint"],
-            tuple(p["chip_depth_m"]),
-        )
-
-    if identical:
-        groove = one_groove(rng)
-        tables = [groove for _ in joints]
-    else:
-        tables = [one_groove(rng) for _ in joints]
-    grooves = PatchSet(joints, half, _stack(tables, u.size, th.size))
+    grooves = _joint_patches(rng, p, "groove", joints, th, distinct, identical)
 
     # Lips: each segment's centre is offset by a small eccentricity (zero-mean around the
     # circumference, so the mean axial profile is unchanged).
@@ -259,31 +274,8 @@ def build_pe(rng: np.random.Generator, x_max: float, distinct: float, identical:
     p["rib_pitch_m"] = pitch
     jitter = 0.0 if identical else p["joint_position_jitter_m"] * distinct
     joints = _joint_positions(rng, p["first_joint_x_m"], seg, x_max, jitter)
-    half = 0.05
-    u = np.linspace(-half, half, 101)
     th = theta_grid(N_THETA_PATCH)
-
-    def one_gap(g: np.random.Generator) -> np.ndarray:
-        return _groove_table(
-            g,
-            u,
-            th,
-            p["gap_depth_m"],
-            p["gap_width_m"],
-            distinct,
-            p["gap_depth_var_m"],
-            p["gap_width_var_m"],
-            p["gap_centre_var_m"],
-            p["chips_per_joint"],
-            tuple(p["chip_depth_m"]),
-        )
-
-    if identical:
-        gap = one_gap(rng)
-        tables = [gap for _ in joints]
-    else:
-        tables = [one_gap(rng) for _ in joints]
-    couplers = PatchSet(joints, half, _stack(tables, u.size, th.size))
+    couplers = _joint_patches(rng, p, "gap", joints, th, distinct, identical)
 
     # Ribs restart at every coupler (pipes are cut at the same point of the rib pattern).
     starts = np.concatenate([[joints[0] - seg], joints])
