@@ -22,18 +22,10 @@ fn pose_of(t: [f64; 3], q: [f64; 4]) -> WireResult<Pose> {
     pose_from_tq(t, q, "pose").map_err(|e| e.to_string())
 }
 
-/// nav_msgs/Odometry (the twist and covariances are skipped).
+/// nav_msgs/Odometry (the twist and covariances are skipped). Its leading fields are laid
+/// out like a TransformStamped: header, child_frame_id, then position and orientation.
 pub fn decode_odometry<'a, R: WireReader<'a>>(r: &mut R) -> WireResult<PoseSample> {
-    let header = r.header()?;
-    let child_frame_id = r.string()?;
-    let t = r.vec3()?;
-    let q = r.quat()?;
-    Ok(PoseSample {
-        stamp: header.stamp,
-        frame_id: header.frame_id,
-        child_frame_id,
-        world_from_body: pose_of(t, q)?,
-    })
+    decode_transform_stamped(r)
 }
 
 /// geometry_msgs/PoseStamped.
