@@ -147,6 +147,28 @@ def _joint_patches(
     return PatchSet(joints, half, _stack(tables, u.size, th.size))
 
 
+def _lips(
+    rng: np.random.Generator,
+    p: dict[str, Any],
+    joints: np.ndarray,
+    th: np.ndarray,
+    distinct: float,
+    identical: bool,
+) -> SegmentTable:
+    """Each segment's centre offset by a small random eccentricity (``lip_eccentricity_m``):
+    a radial step at every joint that is zero-mean around the circumference."""
+    n_seg = joints.size + 1
+    ecc = (
+        np.zeros((n_seg, 2))
+        if identical
+        else rng.normal(0.0, p["lip_eccentricity_m"] * distinct, (n_seg, 2))
+    )
+    return SegmentTable(
+        joints,
+        (ecc[:, :1] * np.cos(th)[None, :] + ecc[:, 1:] * np.sin(th)[None, :]).astype(np.float32),
+    )
+
+
 def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identical: bool) -> Scene:
     """Precast concrete pipe: 0.6 m ID, 2.43 m segments, annular joint grooves (~4 mm deep,
     ~16 mm wide, varying around), eccentric lips (~1.5 mm), chipped edges, occasional lateral
@@ -182,16 +204,7 @@ def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identica
 
     # Lips: each segment's centre is offset by a small eccentricity (zero-mean around the
     # circumference, so the mean axial profile is unchanged).
-    n_seg = joints.size + 1
-    ecc = (
-        np.zeros((n_seg, 2))
-        if identical
-        else rng.normal(0.0, p["lip_eccentricity_m"] * distinct, (n_seg, 2))
-    )
-    lips = SegmentTable(
-        joints,
-        (ecc[:, :1] * np.cos(th)[None, :] + ecc[:, 1:] * np.sin(th)[None, :]).astype(np.float32),
-    )
+    lips = _lips(rng, p, joints, th, distinct, identical)
     rough = _roughness(
         rng,
         x_min,
@@ -287,16 +300,7 @@ def build_pe(rng: np.random.Generator, x_max: float, distinct: float, identical:
         wave = np.tanh(3.0 * np.cos(2.0 * np.pi * local / pitch)) / np.tanh(3.0)
         return 0.5 * rib_h * wave
 
-    n_seg = joints.size + 1
-    ecc = (
-        np.zeros((n_seg, 2))
-        if identical
-        else rng.normal(0.0, p["lip_eccentricity_m"] * distinct, (n_seg, 2))
-    )
-    lips = SegmentTable(
-        joints,
-        (ecc[:, :1] * np.cos(th)[None, :] + ecc[:, 1:] * np.sin(th)[None, :]).astype(np.float32),
-    )
+    lips = _lips(rng, p, joints, th, distinct, identical)
     rough = _roughness(
         rng,
         x_min,
