@@ -6,6 +6,11 @@ circumference (groove depth/width/centre harmonics, eccentric lips), so the circ
 averaged axial profile of two joints is nearly the same, while the unrolled 2D offset maps
 differ. ``distinctiveness`` scales every per-joint variation; ``identical`` makes all joints
 and segments the same geometry (an aliased pipe).
+
+Every builder starts from its module-level parameter dict (``HUME_PARAMS``, ``PE_PARAMS``)
+with the caller's overrides (:func:`hume_params`, :func:`pe_params`, :func:`merge_params`: an
+unknown key is a ``ValueError`` listing the valid ones); ``joints.json`` records the result
+as ``scene_params``.
 """
 
 from __future__ import annotations
@@ -31,6 +36,119 @@ from decod_rs.sim.surface import (
 )
 
 N_THETA_PATCH = 512
+
+HUME_PARAMS: dict[str, Any] = {
+    "radius_m": 0.3,
+    "segment_length_m": 2.43,
+    "first_joint_x_m": 1.2,
+    "joint_position_jitter_m": 0.002,
+    "groove_depth_m": 0.004,
+    "groove_width_m": 0.016,
+    "groove_depth_var_m": 0.0012,
+    "groove_width_var_m": 0.002,
+    "groove_centre_var_m": 0.0015,
+    "chips_per_joint": 2.0,
+    "chip_depth_m": [0.001, 0.002],
+    "lip_eccentricity_m": 0.0015,
+    "roughness_m": 0.001,
+    "roughness_corr_m": 0.012,
+    "lateral_connection_every_m": 15.0,
+    "lateral_connection_radius_m": 0.075,
+    "lateral_connection_depth_m": 0.25,
+    "range_noise_m": 0.0015,
+    "x_min_m": -0.3,
+}
+
+PE_PARAMS: dict[str, Any] = {
+    "radius_m": 0.2,
+    "segment_length_m": 6.0,
+    "ribs_per_segment": 171,
+    "rib_height_m": 0.0012,
+    "first_joint_x_m": 2.0,
+    "joint_position_jitter_m": 0.003,
+    "gap_depth_m": 0.005,
+    "gap_width_m": 0.02,
+    "gap_depth_var_m": 0.0012,
+    "gap_width_var_m": 0.003,
+    "gap_centre_var_m": 0.002,
+    "chips_per_joint": 1.0,
+    "chip_depth_m": [0.001, 0.002],
+    "lip_eccentricity_m": 0.001,
+    "roughness_m": 0.0003,
+    "roughness_corr_m": 0.01,
+    "range_noise_m": 0.0015,
+    "x_min_m": -0.3,
+}
+#: Per scene, the parameter that sets the spacing of the boundaries (joints, rings, arches).
+SPACING_KEYS = {
+    "hume": "segment_length_m",
+    "pe": "segment_length_m",
+    "shield": "ring_width_m",
+    "horseshoe": "arch_spacing_m",
+}
+#: Smallest boundary spacing an override may ask for (m): the joint patches (+-5 cm) and a
+#: pipe's lateral connections must fit between two boundaries.
+MIN_SPACING_M = 0.5
+
+
+def _coerce(scene: str, key: str, default: Any, value: Any) -> Any:
+    """``value`` in the type of ``default`` (int, float or a list of the same length)."""
+    if isinstance(default, list):
+        if not isinstance(value, list | tuple) or len(value) != len(default):
+            raise ValueError(
+                f"{scene} scene parameter {key!r} takes a list of {len(default)} numbers, "
+                f"got {value!r}"
+            )
+        return [float(v) for v in value]
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{scene} scene parameter {key!r} takes a number, got {value!r}") from None
+    if not np.isfinite(number):
+        raise ValueError(f"{scene} scene parameter {key!r} must be finite, got {value!r}")
+    if isinstance(default, int):
+        if number != round(number):
+            raise ValueError(f"{scene} scene parameter {key!r} takes an integer, got {value!r}")
+        return round(number)
+    return number
+
+
+def merge_params(
+    scene: str, defaults: dict[str, Any], overrides: dict[str, Any] | None
+) -> dict[str, Any]:
+    """A fresh copy of ``defaults`` with ``overrides`` applied. An unknown key, a value of the
+    wrong type or a non-positive radius/spacing raises ``ValueError`` naming the key (and,
+    for an unknown key, listing the valid ones)."""
+    p: dict[str, Any] = {k: list(v) if isinstance(v, list) else v for k, v in defaults.items()}
+    for key, value in (overrides or {}).items():
+        if key not in defaults:
+            raise ValueError(
+                f"unknown {scene} scene parameter {key!r}; valid: {', '.join(sorted(defaults))}"
+            )
+        p[key] = _coerce(scene, key, defaults[key], value)
+    if p["radius_m"] <= 0.0:
+        raise ValueError(f"{scene} scene parameter 'radius_m' must be > 0, got {p['radius_m']}")
+    spacing = SPACING_KEYS[scene]
+    if p[spacing] < MIN_SPACING_M:
+        raise ValueError(
+            f"{scene} scene parameter {spacing!r} must be >= {MIN_SPACING_M} m, got {p[spacing]}"
+        )
+    return p
+
+
+def hume_params(overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The hume builder's parameters (``HUME_PARAMS`` with ``overrides``)."""
+    return merge_params("hume", HUME_PARAMS, overrides)
+
+
+def pe_params(overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The pe builder's parameters (``PE_PARAMS`` with ``overrides``). Another segment length
+    keeps the rib pitch (~35 mm) unless ``ribs_per_segment`` is given too."""
+    p = merge_params("pe", PE_PARAMS, overrides)
+    if overrides and "segment_length_m" in overrides and "ribs_per_segment" not in overrides:
+        pitch = PE_PARAMS["segment_length_m"] / PE_PARAMS["ribs_per_segment"]
+        p["ribs_per_segment"] = max(1, round(p["segment_length_m"] / pitch))
+    return p
 
 
 def _joint_positions(
@@ -169,31 +287,17 @@ def _lips(
     )
 
 
-def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identical: bool) -> Scene:
+def build_hume(
+    rng: np.random.Generator,
+    x_max: float,
+    distinct: float,
+    identical: bool,
+    overrides: dict[str, Any] | None = None,
+) -> Scene:
     """Precast concrete pipe: 0.6 m ID, 2.43 m segments, annular joint grooves (~4 mm deep,
     ~16 mm wide, varying around), eccentric lips (~1.5 mm), chipped edges, occasional lateral
     connections, ~1 mm wall roughness, 1.5 mm range noise."""
-    p: dict[str, Any] = {
-        "radius_m": 0.3,
-        "segment_length_m": 2.43,
-        "first_joint_x_m": 1.2,
-        "joint_position_jitter_m": 0.002,
-        "groove_depth_m": 0.004,
-        "groove_width_m": 0.016,
-        "groove_depth_var_m": 0.0012,
-        "groove_width_var_m": 0.002,
-        "groove_centre_var_m": 0.0015,
-        "chips_per_joint": 2.0,
-        "chip_depth_m": [0.001, 0.002],
-        "lip_eccentricity_m": 0.0015,
-        "roughness_m": 0.001,
-        "roughness_corr_m": 0.012,
-        "lateral_connection_every_m": 15.0,
-        "lateral_connection_radius_m": 0.075,
-        "lateral_connection_depth_m": 0.25,
-        "range_noise_m": 0.0015,
-        "x_min_m": -0.3,
-    }
+    p = hume_params(overrides)
     radius = p["radius_m"]
     x_min = p["x_min_m"]
     seg = p["segment_length_m"]
@@ -229,7 +333,9 @@ def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identica
         n_conn = int(rng.poisson((x_max - x_min) / p["lateral_connection_every_m"]))
         segs = rng.choice(max(joints.size - 1, 1), size=min(n_conn, max(joints.size - 1, 0)))
         for s in np.sort(np.unique(segs)):
-            xc = joints[s] + rng.uniform(0.6, seg - 0.6)
+            # 0.6 m from the joints (a quarter segment in short segments).
+            margin = min(0.6, 0.25 * seg)
+            xc = joints[s] + rng.uniform(margin, seg - margin)
             # Upper half, 17..75 deg above either side (theta = atan2(z, y)).
             elev = rng.uniform(0.3, 1.3)
             th_c = elev if rng.random() < 0.5 else np.pi - elev
@@ -256,30 +362,17 @@ def build_hume(rng: np.random.Generator, x_max: float, distinct: float, identica
     )
 
 
-def build_pe(rng: np.random.Generator, x_max: float, distinct: float, identical: bool) -> Scene:
+def build_pe(
+    rng: np.random.Generator,
+    x_max: float,
+    distinct: float,
+    identical: bool,
+    overrides: dict[str, Any] | None = None,
+) -> Scene:
     """Ribbed polyethylene pipe: 0.4 m ID, inner ribs every ~35 mm (1.2 mm peak to peak, a
     periodic micro-structure that must not be taken for joints), 6 m segments joined by
     couplers whose gap (~20 mm wide, ~5 mm deep) varies around the circumference."""
-    p: dict[str, Any] = {
-        "radius_m": 0.2,
-        "segment_length_m": 6.0,
-        "ribs_per_segment": 171,
-        "rib_height_m": 0.0012,
-        "first_joint_x_m": 2.0,
-        "joint_position_jitter_m": 0.003,
-        "gap_depth_m": 0.005,
-        "gap_width_m": 0.02,
-        "gap_depth_var_m": 0.0012,
-        "gap_width_var_m": 0.003,
-        "gap_centre_var_m": 0.002,
-        "chips_per_joint": 1.0,
-        "chip_depth_m": [0.001, 0.002],
-        "lip_eccentricity_m": 0.001,
-        "roughness_m": 0.0003,
-        "roughness_corr_m": 0.01,
-        "range_noise_m": 0.0015,
-        "x_min_m": -0.3,
-    }
+    p = pe_params(overrides)
     radius = p["radius_m"]
     x_min = p["x_min_m"]
     seg = p["segment_length_m"]

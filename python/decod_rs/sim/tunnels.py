@@ -2,6 +2,10 @@
 ``horseshoe`` (rough rock, steel arches every ~1.2 m, flat floor).
 
 Section centre at y = 0, z = 0 (world); the floor is the plane ``z = floor_z_m``.
+
+Every builder starts from its module-level parameter dict (``SHIELD_PARAMS``,
+``HORSESHOE_PARAMS``) with the caller's overrides (:func:`shield_params`,
+:func:`horseshoe_params`); another ``radius_m`` (tunnel width / 2) moves the floor with it.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from decod_rs.sim.fields import (
     smooth_noise,
     wrap_angle,
 )
-from decod_rs.sim.pipes import _groove_table, _joint_positions, _roughness
+from decod_rs.sim.pipes import _groove_table, _joint_positions, _roughness, merge_params
 from decod_rs.sim.surface import (
     KIND_ARCH,
     KIND_CAP,
@@ -31,6 +35,83 @@ from decod_rs.sim.surface import (
     theta_grid,
 )
 
+SHIELD_PARAMS: dict[str, Any] = {
+    "radius_m": 3.0,
+    "floor_z_m": -2.0,
+    "ring_width_m": 1.5,
+    "first_joint_x_m": 1.0,
+    "joint_position_jitter_m": 0.003,
+    "segment_angles_deg": [22.5, 67.5, 67.5, 67.5, 67.5, 67.5],
+    "stagger_deg": 33.75,
+    "lipping_m": 0.003,
+    "seam_depth_m": 0.015,
+    "seam_width_m": 0.02,
+    "seam_depth_var_m": 0.003,
+    "seam_width_var_m": 0.004,
+    "seam_centre_var_m": 0.003,
+    "spalls_per_seam": 2.0,
+    "spall_depth_m": [0.003, 0.008],
+    "long_seam_depth_m": 0.012,
+    "long_seam_width_m": 0.02,
+    "pockets_per_side": 16,
+    "pocket_offset_m": 0.2,
+    "pocket_axial_m": 0.18,
+    "pocket_circ_m": 0.28,
+    "pocket_depth_m": 0.08,
+    "pocket_depth_var_m": 0.006,
+    "roughness_m": 0.002,
+    "roughness_corr_m": 0.04,
+    "floor_roughness_m": 0.005,
+    "range_noise_m": 0.01,
+    "x_min_m": -1.0,
+}
+
+HORSESHOE_PARAMS: dict[str, Any] = {
+    "radius_m": 2.5,
+    "floor_z_m": -1.5,
+    "arch_spacing_m": 1.2,
+    "first_joint_x_m": 1.0,
+    "arch_spacing_jitter_m": 0.01,
+    "arch_width_m": 0.15,
+    "arch_tilt_m": 0.01,
+    "arch_wave_m": 0.01,
+    "arch_deform_m": 0.015,
+    "rock_offset_m": 0.2,
+    "rock_overbreak_m": 0.05,
+    "rock_overbreak_corr_m": 0.5,
+    "rock_roughness_m": 0.015,
+    "rock_roughness_corr_m": 0.05,
+    "floor_roughness_m": 0.02,
+    "range_noise_m": 0.015,
+    "x_min_m": -1.0,
+}
+
+
+def _tunnel_params(
+    scene: str, defaults: dict[str, Any], overrides: dict[str, Any] | None
+) -> dict[str, Any]:
+    """``defaults`` with ``overrides``; another radius moves the floor with it (the floor keeps
+    its height as a fraction of the radius) unless ``floor_z_m`` is given too."""
+    p = merge_params(scene, defaults, overrides)
+    if overrides and "radius_m" in overrides and "floor_z_m" not in overrides:
+        p["floor_z_m"] = defaults["floor_z_m"] * p["radius_m"] / defaults["radius_m"]
+    if not -p["radius_m"] < p["floor_z_m"] < 0.0:
+        raise ValueError(
+            f"{scene} scene parameter 'floor_z_m' must lie between -radius_m and 0, got "
+            f"{p['floor_z_m']} (radius_m {p['radius_m']})"
+        )
+    return p
+
+
+def shield_params(overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The shield builder's parameters (``SHIELD_PARAMS`` with ``overrides``)."""
+    return _tunnel_params("shield", SHIELD_PARAMS, overrides)
+
+
+def horseshoe_params(overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The horseshoe builder's parameters (``HORSESHOE_PARAMS`` with ``overrides``)."""
+    return _tunnel_params("horseshoe", HORSESHOE_PARAMS, overrides)
+
 
 def _floor_texture(
     rng: np.random.Generator,
@@ -40,55 +121,36 @@ def _floor_texture(
     corr_m: float,
     period: float | None = None,
     x0: float = 0.0,
+    half_width: float = 4.0,
 ) -> Grid2D:
-    """Floor roughness on (x, y); with ``period`` it repeats along x every ``period`` metres
-    from ``x0`` (aliased tunnels: the floor beside every boundary is the same too)."""
+    """Floor roughness on (x, y), ``|y| <= max(4 m, half_width)``; with ``period`` it repeats
+    along x every ``period`` metres from ``x0`` (aliased tunnels: the floor beside every
+    boundary is the same too)."""
     du = 0.05
+    half = max(4.0, half_width)
+    n_v = round(2.0 * half / du)
     if period is not None:
         n_u = max(4, round(period / du))
         du_x = period / n_u
-        values = smooth_noise(rng, (n_u, 160), (corr_m / du_x, corr_m / du), sigma)
-        return Grid2D(x0, du_x, -4.0, du, values, wrap_v=False, wrap_u=True)
+        values = smooth_noise(rng, (n_u, n_v), (corr_m / du_x, corr_m / du), sigma)
+        return Grid2D(x0, du_x, -half, du, values, wrap_v=False, wrap_u=True)
     n_u = int(np.ceil((x_max - x_min) / du)) + 2
-    values = smooth_noise(rng, (n_u, 160), (corr_m / du, corr_m / du), sigma)
-    return Grid2D(x_min, du, -4.0, du, values, wrap_v=False)
+    values = smooth_noise(rng, (n_u, n_v), (corr_m / du, corr_m / du), sigma)
+    return Grid2D(x_min, du, -half, du, values, wrap_v=False)
 
 
-def build_shield(rng: np.random.Generator, x_max: float, distinct: float, identical: bool) -> Scene:
+def build_shield(
+    rng: np.random.Generator,
+    x_max: float,
+    distinct: float,
+    identical: bool,
+    overrides: dict[str, Any] | None = None,
+) -> Scene:
     """Shield tunnel: 6 m ID, 1.5 m rings of 6 segments (a 22.5 deg key), ring seams
     (~15 mm groove) with lipping (per-segment radial offsets, zero-mean per ring), staggered
     longitudinal seams (ring rotation alternates), 16 bolt pockets on each side of every ring
     seam (a band 0.11-0.29 m off the seam), flat invert 1 m above the ring bottom."""
-    p: dict[str, Any] = {
-        "radius_m": 3.0,
-        "floor_z_m": -2.0,
-        "ring_width_m": 1.5,
-        "first_joint_x_m": 1.0,
-        "joint_position_jitter_m": 0.003,
-        "segment_angles_deg": [22.5, 67.5, 67.5, 67.5, 67.5, 67.5],
-        "stagger_deg": 33.75,
-        "lipping_m": 0.003,
-        "seam_depth_m": 0.015,
-        "seam_width_m": 0.02,
-        "seam_depth_var_m": 0.003,
-        "seam_width_var_m": 0.004,
-        "seam_centre_var_m": 0.003,
-        "spalls_per_seam": 2.0,
-        "spall_depth_m": [0.003, 0.008],
-        "long_seam_depth_m": 0.012,
-        "long_seam_width_m": 0.02,
-        "pockets_per_side": 16,
-        "pocket_offset_m": 0.2,
-        "pocket_axial_m": 0.18,
-        "pocket_circ_m": 0.28,
-        "pocket_depth_m": 0.08,
-        "pocket_depth_var_m": 0.006,
-        "roughness_m": 0.002,
-        "roughness_corr_m": 0.04,
-        "floor_roughness_m": 0.005,
-        "range_noise_m": 0.01,
-        "x_min_m": -1.0,
-    }
+    p = shield_params(overrides)
     radius = p["radius_m"]
     x_min = p["x_min_m"]
     ring = p["ring_width_m"]
@@ -185,7 +247,14 @@ def build_shield(rng: np.random.Generator, x_max: float, distinct: float, identi
     if identical:
         rough = Grid2D(joints[0], rough.du, rough.v0, rough.dv, rough.values, True, True)
     floor = _floor_texture(
-        rng, x_min, x_max, p["floor_roughness_m"], 0.08, ring if identical else None, joints[0]
+        rng,
+        x_min,
+        x_max,
+        p["floor_roughness_m"],
+        0.08,
+        ring if identical else None,
+        joints[0],
+        radius,
     )
     p["identical_joints"] = identical
     p["ring_rotation_deg"] = [round(float(np.rad2deg(r)), 3) for r in rot]
@@ -205,30 +274,16 @@ def build_shield(rng: np.random.Generator, x_max: float, distinct: float, identi
 
 
 def build_horseshoe(
-    rng: np.random.Generator, x_max: float, distinct: float, identical: bool
+    rng: np.random.Generator,
+    x_max: float,
+    distinct: float,
+    identical: bool,
+    overrides: dict[str, Any] | None = None,
 ) -> Scene:
     """Rough rock tunnel (5 m span, rock 0.2 m outside the nominal section with ~5 cm
     overbreak and ~1.5 cm fine roughness) with steel arches (0.15 m flange) every ~1.2 m:
     each arch is slightly tilted and deformed; flat floor 1.5 m below the centre."""
-    p: dict[str, Any] = {
-        "radius_m": 2.5,
-        "floor_z_m": -1.5,
-        "arch_spacing_m": 1.2,
-        "first_joint_x_m": 1.0,
-        "arch_spacing_jitter_m": 0.01,
-        "arch_width_m": 0.15,
-        "arch_tilt_m": 0.01,
-        "arch_wave_m": 0.01,
-        "arch_deform_m": 0.015,
-        "rock_offset_m": 0.2,
-        "rock_overbreak_m": 0.05,
-        "rock_overbreak_corr_m": 0.5,
-        "rock_roughness_m": 0.015,
-        "rock_roughness_corr_m": 0.05,
-        "floor_roughness_m": 0.02,
-        "range_noise_m": 0.015,
-        "x_min_m": -1.0,
-    }
+    p = horseshoe_params(overrides)
     radius = p["radius_m"]
     x_min = p["x_min_m"]
     spacing = p["arch_spacing_m"]
@@ -288,7 +343,9 @@ def build_horseshoe(
     def rock_base(x: F64, theta: F64) -> F64:
         return np.full(np.broadcast(x, theta).shape, offset)
 
-    floor = _floor_texture(rng, x_min, x_max, p["floor_roughness_m"], 0.1, period, joints[0])
+    floor = _floor_texture(
+        rng, x_min, x_max, p["floor_roughness_m"], 0.1, period, joints[0], radius
+    )
     p["identical_joints"] = identical
     return Scene(
         name="horseshoe",
