@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,17 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from decod_rs.cli import main as cli_main
-from decod_rs.sim import Simulation, build_scene, drift_odometry, generate, simulate
+from decod_rs.sim import (
+    LegProfile,
+    Simulation,
+    build_scene,
+    drift_odometry,
+    generate,
+    odometry_for_profile,
+    parse_profile,
+    scene_params,
+    simulate,
+)
 from decod_rs.sim.surface import Scene
 from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
 
@@ -389,3 +400,92 @@ def test_surface_lookups_do_not_depend_on_array_shape(scene: str) -> None:
     assert grid.shape == (40, 30)
     assert np.array_equal(grid.ravel(), flat)
     assert np.any(grid != 0.0)
+
+
+@pytest.mark.parametrize("mode", ["reverse", "turn"])
+def test_uneven_leg_profile_scales_each_leg(mode: str) -> None:
+    length = 60.0
+    spec = TrajectorySpec(x_start_m=0.5, length_m=length, speed_mps=0.8, return_mode=mode)
+    traj = Trajectory(spec, np.random.default_rng(0))
+    t = np.arange(0.0, traj.duration_s, 0.1)
+    gt = traj.poses(t)
+    k_far = round(traj.t_far_arrive / 0.1)
+    dr = odometry_for_profile(
+        gt, traj.travelled(t), "legs:-0.05,-0.15", np.random.default_rng(3), split_index=k_far
+    )
+    err = dr.odom_poses[:, :3, 3] - gt[:, :3, 3]
+    # Outbound: the odometry reports 95 % of the distance driven, so it is 5 % short at the far
+    # end (the 1 cm/sqrt(m) axial walk is ~8 cm = 0.13 % here; 0.5 % is ~4 sigma).
+    out_m = gt[k_far, 0, 3] - gt[0, 0, 3]
+    assert out_m == pytest.approx(length, abs=0.1)
+    assert err[k_far, 0] / out_m == pytest.approx(-0.05, abs=0.005)
+    assert dr.turnaround_axial_m == pytest.approx(err[k_far, 0])
+    # Return: 85 % of the way back, so the end is (-0.05 + 0.15) L = +6 m beyond the start
+    # (walk ~11 cm at 120 m travelled).
+    assert err[-1, 0] == pytest.approx(0.10 * length, abs=0.5)
+    assert dr.endpoint_axial_m == pytest.approx(err[-1, 0])
+    # Small attitude walks: lateral error stays centimetres.
+    assert np.max(np.hypot(err[:, 1], err[:, 2])) < 0.1
+    # No drift before moving; the default split (farthest scan) gives the same outbound error.
+    assert np.allclose(dr.odom_poses[t < spec.pre_s], gt[t < spec.pre_s])
+    again = odometry_for_profile(
+        gt, traj.travelled(t), "legs:-0.05,-0.15", np.random.default_rng(3)
+    )
+    assert abs(again.odom_poses[k_far, 0, 3] - dr.odom_poses[k_far, 0, 3]) < 0.01
+
+
+def test_profiles_parse_and_feed_the_simulator() -> None:
+    assert parse_profile("legs:-0.05, -0.15") == LegProfile(-0.05, -0.15)
+    assert parse_profile("medium") == 1.7 and parse_profile(2.5) == 2.5
+    for bad in ("legs:-0.05", "legs:a,b", "legs:-1.5,0", "fast"):
+        with pytest.raises(ValueError, match="legs:"):
+            parse_profile(bad)
+    sim = Simulation("pe", seed=1, length_m=10.0, speed_mps=1.0, drift="legs:-0.05,-0.15")
+    meta = sim.metadata()["drift"]
+    assert meta["profile"] == "legs:-0.05,-0.15" and meta["requested_endpoint_m"] is None
+    assert meta["turnaround_axial_m"] == pytest.approx(-0.5, abs=0.06)
+    assert meta["endpoint_axial_m"] == pytest.approx(1.0, abs=0.1)
+    # The endpoint model through the same entry point is the original one, bit for bit.
+    gt, d = sim.gt_poses, sim.traj.travelled(sim.t_s)
+    a = odometry_for_profile(gt, d, "1.7", np.random.default_rng(9))
+    b = drift_odometry(gt, d, 1.7, np.random.default_rng(9))
+    assert np.array_equal(a.odom_poses, b.odom_poses)
+
+
+def test_scene_overrides_change_the_geometry_consistently() -> None:
+    with pytest.raises(ValueError, match=r"'radius'.*valid: .*radius_m"):
+        scene_params("hume", {"radius": 0.5})
+    with pytest.raises(ValueError, match="segment_length_m"):
+        scene_params("pe", {"segment_length_m": 0.0})
+    assert scene_params("pe", {"segment_length_m": 3})["ribs_per_segment"] == 86  # 35 mm ribs
+    # A 1.0 m hume pipe with 4 m joints: the sensor mount scales with the radius.
+    data = generate(
+        "hume",
+        seed=1,
+        length_m=6.0,
+        speed_mps=1.0,
+        sensor_overrides={"rays_per_scan": 2000},
+        scene_overrides={"radius_m": 0.5, "segment_length_m": 4.0},
+        scan_indices=[0, 40],
+    )
+    assert data.scene.radius_m == 0.5 and data.metadata["axis"]["radius_m"] == 0.5
+    assert data.metadata["scene_params"]["segment_length_m"] == 4.0
+    assert data.metadata["scene_overrides"] == {"radius_m": 0.5, "segment_length_m": 4.0}
+    assert np.allclose(np.diff(data.joints_x_m), 4.0, atol=0.02)
+    assert data.metadata["trajectory"]["z0_m"] == pytest.approx(-0.03 * 0.5 / 0.3)
+    for pts, pose in zip(data.points, data.gt_poses, strict=True):
+        world = pts.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+        assert np.mean(_surface_residual(data.scene, world) < 0.01) > 0.99
+    # A 9 m wide shield tunnel: the floor moves with the radius, the sensor keeps 1.6 m above it.
+    sim = Simulation("shield", seed=0, length_m=6.0, scene_overrides={"radius_m": 4.5})
+    assert sim.scene.floor_z_m == pytest.approx(-3.0)
+    assert sim.traj_spec.z0_m == pytest.approx(-3.0 + 1.6)
+
+
+def test_cli_scene_param(tmp_path: Path) -> None:
+    args = ["simulate", "pe", "--out", str(tmp_path), "--length", "1.5", "--speed", "0.5"]
+    args += ["--rays", "200", "--quiet", "--scene-param", "radius_m=0.3"]
+    assert cli_main([*args, "--scene-param", "segment_length_m=3"]) == 0
+    doc = json.loads((tmp_path / "joints.json").read_text())
+    assert doc["scene_params"]["radius_m"] == 0.3 and doc["scene_params"]["segment_length_m"] == 3
+    assert cli_main([*args, "--scene-param", "diameter=1", "--force"]) == 2

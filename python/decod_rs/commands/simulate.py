@@ -29,7 +29,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--drift",
         default="medium",
-        help=f"odometry endpoint error in metres or a preset {sorted(DRIFT_PRESETS)}",
+        help=f"odometry endpoint error in metres, a preset {sorted(DRIFT_PRESETS)}, or scale "
+        "errors per leg 'legs:OUT,RET' (e.g. legs:-0.05,-0.15)",
+    )
+    p.add_argument(
+        "--scene-param",
+        dest="scene_params",
+        action="append",
+        default=[],
+        type=_scene_param,
+        metavar="KEY=VALUE",
+        help="override a scene geometry parameter (repeatable), e.g. radius_m=0.5 or "
+        "segment_length_m=3; joints.json scene_params lists them",
     )
     p.add_argument("--distinctiveness", type=float, default=None, help="1 = default")
     p.add_argument("--identical-joints", action="store_true", help="an aliased corridor")
@@ -47,6 +58,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true", help="replace an existing DIR/log")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def _scene_param(text: str) -> tuple[str, float]:
+    key, sep, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = float("nan")
+    if not sep or not key.strip() or number != number:
+        raise argparse.ArgumentTypeError(f"expected KEY=NUMBER, got {text!r}")
+    return key.strip(), number
 
 
 def run(args: argparse.Namespace) -> int:
@@ -67,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         identical_joints=args.identical_joints,
         speed_mps=args.speed,
         sensor_overrides=overrides or None,
+        scene_overrides=dict(args.scene_params) or None,
         odometry=args.odometry,
         livox=args.livox,
         ros1=args.ros1,

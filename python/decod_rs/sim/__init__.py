@@ -13,6 +13,15 @@ Scenes (defaults: sensor, speed, one-way length, return):
 - ``horseshoe``: rough rock, steel arches every 1.2 m, flat floor, 1.5 cm range noise
   (``spin16``, 1.2 m/s, 100 m, ``turn``).
 
+Geometry overrides: ``simulate(..., scene_overrides={"radius_m": 0.5})`` (``decod simulate
+... --scene-param radius_m=0.5``) changes the builder's parameters (``radius_m``,
+``segment_length_m`` / ``ring_width_m`` / ``arch_spacing_m`` = the boundary spacing, ...;
+:func:`scene_params` lists them); the sensor mount and a tunnel's floor follow the radius.
+
+Drift profiles (:mod:`decod_rs.sim.drift`): an endpoint error in metres or a preset, or
+per-leg scale errors ``"legs:-0.05,-0.15"``; :func:`odometry_for_profile` makes the odometry
+of any profile from ground truth without re-simulating the scans.
+
 Frames: world x = corridor axis from x = 0, z up, section centre at y = z = 0 (tunnel floors
 at ``floor_z_m``: shield -2.0 m, horseshoe -1.5 m). Body = sensor frame, FLU. ``gt.tum`` is
 ``world_from_body``; ``/odom`` and ``odom.tum`` are the drifting ``odom_from_body`` (odom =
@@ -29,24 +38,34 @@ Python::
 (1), ``scene``, ``seed``, ``distinctiveness``, ``identical_joints``, ``axis`` {frame,
 origin_m, direction, centre_line_y_m, centre_line_z_m, radius_m, floor_z_m, x_min_m,
 x_max_m}, ``joints_x_m`` (true boundary positions along the axis, m from x = 0),
-``n_joints``, ``scene_params`` (every geometry parameter), ``sensor`` (SensorSpec fields +
-``range_noise_m``), ``trajectory`` (TrajectorySpec fields), ``drift`` {requested_endpoint_m,
-endpoint_error_m, endpoint_axial_m, endpoint_lateral_m, max_axial_m, yaw_end_rad,
-pitch_end_rad, model}, ``odometry`` {name: "drift-model" | "kiss-icp", endpoint_error_m, ...},
-``imu`` (ImuSpec fields), ``time_split`` {start_stamp, far_end_arrival_stamp,
-return_start_stamp, end_stamp, outbound_scans [first, last], return_scans [first, last],
-duration_s}, ``frames``, ``topics``, ``files`` {log, gt, odom}.
+``n_joints``, ``scene_params`` (every geometry parameter), ``scene_overrides``, ``sensor``
+(SensorSpec fields + ``range_noise_m``), ``trajectory`` (TrajectorySpec fields), ``drift``
+{profile, requested_endpoint_m (None for a leg profile), endpoint_error_m, endpoint_axial_m,
+endpoint_lateral_m, max_axial_m, yaw_end_rad, pitch_end_rad, turnaround_axial_m, model},
+``odometry`` {name: "drift-model" | "kiss-icp", endpoint_error_m, ...}, ``imu`` (ImuSpec
+fields), ``time_split`` {start_stamp, far_end_arrival_stamp, return_start_stamp, end_stamp,
+outbound_scans [first, last], return_scans [first, last], duration_s}, ``frames``,
+``topics``, ``files`` {log, gt, odom}.
 """
 
 from decod_rs.sim.api import SimData, SimResult, Simulation, generate, simulate
-from decod_rs.sim.drift import DRIFT_PRESETS, drift_odometry, resolve_drift
-from decod_rs.sim.scenes import SCENES, build_scene
+from decod_rs.sim.drift import (
+    DRIFT_PRESETS,
+    LegProfile,
+    drift_odometry,
+    odometry_for_profile,
+    parse_profile,
+    resolve_drift,
+    turnaround_index,
+)
+from decod_rs.sim.scenes import SCENES, build_scene, scene_params
 from decod_rs.sim.sensors import SENSORS, SensorSpec, sensor_spec
 
 __all__ = [
     "DRIFT_PRESETS",
     "SCENES",
     "SENSORS",
+    "LegProfile",
     "SensorSpec",
     "SimData",
     "SimResult",
@@ -54,7 +73,11 @@ __all__ = [
     "build_scene",
     "drift_odometry",
     "generate",
+    "odometry_for_profile",
+    "parse_profile",
     "resolve_drift",
+    "scene_params",
     "sensor_spec",
     "simulate",
+    "turnaround_index",
 ]

@@ -14,13 +14,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.progress import Progress
-from decod_rs.sim.drift import DriftResult, drift_odometry, resolve_drift
+from decod_rs.sim.drift import DriftResult, LegProfile, odometry_for_profile, parse_profile
 from decod_rs.sim.fields import F64
 from decod_rs.sim.imu import ImuSamples, ImuSpec, simulate_imu
 from decod_rs.sim.lio import KissOdometry
 from decod_rs.sim.livox import Ros1Writer
 from decod_rs.sim.raycast import cast
-from decod_rs.sim.scenes import build_scene, scene_defaults
+from decod_rs.sim.scenes import build_scene, defaults_for, scene_params
 from decod_rs.sim.sensors import SCAN_PERIOD_S, SensorSpec, measure, ray_directions, sensor_spec
 from decod_rs.sim.surface import Scene
 from decod_rs.sim.trajectory import Trajectory, TrajectorySpec, so3_log
@@ -40,6 +40,12 @@ SCAN_PERIOD_NS = round(SCAN_PERIOD_S * 1e9)
 LOG_DIRNAME = "log"
 ROS1_BAG_NAME = "log.bag"
 JOINTS_FORMAT_VERSION = 1
+DRIFT_MODELS = {
+    "endpoint": "axial scale error + random walk + creep to the endpoint; "
+    "yaw/pitch random-walk bridges; functions of travelled distance",
+    "legs": "per-leg scale errors (outbound, return) split at the far end + 1 cm/sqrt(m) "
+    "axial and small yaw/pitch random walks; functions of travelled distance",
+}
 
 
 class Simulation:
@@ -63,8 +69,10 @@ class Simulation:
         speed_mps: float | None = None,
         sensor_overrides: dict[str, Any] | None = None,
         imu: ImuSpec | None = None,
+        scene_overrides: dict[str, Any] | None = None,
     ) -> None:
-        defaults = scene_defaults(scene)
+        self.scene_overrides = dict(scene_overrides or {})
+        defaults = defaults_for(scene, scene_params(scene, self.scene_overrides))
         self.seed = int(seed)
         self.distinctiveness = 1.0 if distinctiveness is None else float(distinctiveness)
         self.identical_joints = bool(identical_joints)
@@ -88,7 +96,12 @@ class Simulation:
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
         self.scene: Scene = build_scene(
-            scene, self.seed, x_max, self.distinctiveness, self.identical_joints
+            scene,
+            self.seed,
+            x_max,
+            self.distinctiveness,
+            self.identical_joints,
+            self.scene_overrides,
         )
         self.sensor: SensorSpec = sensor_spec(sensor or defaults.sensor, **(sensor_overrides or {}))
         self.range_noise_m = (
@@ -100,12 +113,15 @@ class Simulation:
         self.stamps_ns = T0_NS + SCAN_PERIOD_NS * np.arange(n_scans, dtype=np.int64)
         self.t_s: F64 = np.arange(n_scans, dtype=np.float64) * SCAN_PERIOD_S
         self.gt_poses = self.traj.poses(self.t_s)
-        self.drift_request_m = resolve_drift(drift)
-        self.drift: DriftResult = drift_odometry(
+        parsed = parse_profile(drift)
+        self.drift_profile = parsed.text if isinstance(parsed, LegProfile) else str(drift)
+        self.drift_request_m: float | None = None if isinstance(parsed, LegProfile) else parsed
+        self.drift: DriftResult = odometry_for_profile(
             self.gt_poses,
             self.traj.travelled(self.t_s),
-            self.drift_request_m,
+            drift,
             np.random.default_rng([self.seed, 3]),
+            split_index=self.scan_index_at(self.traj.t_far_arrive),
         )
         self.imu_spec = imu or ImuSpec()
         self.imu: ImuSamples = simulate_imu(
@@ -179,7 +195,9 @@ class Simulation:
             "scene_params": sc.params,
             "sensor": {**self.sensor.as_dict(), "range_noise_m": self.range_noise_m},
             "trajectory": self.traj_spec.as_dict(),
+            "scene_overrides": self.scene_overrides,
             "drift": {
+                "profile": self.drift_profile,
                 "requested_endpoint_m": self.drift_request_m,
                 "endpoint_error_m": dr.endpoint_error_m,
                 "endpoint_axial_m": dr.endpoint_axial_m,
@@ -187,8 +205,8 @@ class Simulation:
                 "max_axial_m": dr.max_axial_m,
                 "yaw_end_rad": dr.yaw_end_rad,
                 "pitch_end_rad": dr.pitch_end_rad,
-                "model": "axial scale error + random walk + creep to the endpoint; "
-                "yaw/pitch random-walk bridges; functions of travelled distance",
+                "turnaround_axial_m": dr.turnaround_axial_m,
+                "model": DRIFT_MODELS[dr.model],
             },
             "odometry": {"name": "drift-model", "endpoint_error_m": dr.endpoint_error_m},
             "imu": self.imu_spec.as_dict(),
@@ -247,9 +265,11 @@ def generate(
     speed_mps: float | None = None,
     sensor_overrides: dict[str, Any] | None = None,
     scan_indices: list[int] | None = None,
+    scene_overrides: dict[str, Any] | None = None,
 ) -> SimData:
     """Simulate a run in memory (every scan, or only ``scan_indices``; the poses, IMU and
-    drift always cover the whole run and ``stamps_ns`` the selected scans)."""
+    drift always cover the whole run and ``stamps_ns`` the selected scans). Arguments as
+    :func:`simulate`."""
     sim = Simulation(
         scene,
         seed=seed,
@@ -261,6 +281,7 @@ def generate(
         identical_joints=identical_joints,
         speed_mps=speed_mps,
         sensor_overrides=sensor_overrides,
+        scene_overrides=scene_overrides,
     )
     idx = list(range(sim.n_scans)) if scan_indices is None else list(scan_indices)
     scans = [sim.scan(k) for k in idx]
@@ -352,6 +373,7 @@ def simulate(
     identical_joints: bool = False,
     speed_mps: float | None = None,
     sensor_overrides: dict[str, Any] | None = None,
+    scene_overrides: dict[str, Any] | None = None,
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -362,9 +384,15 @@ def simulate(
     ``/odom``, ``/imu``), ``out_dir/gt.tum``, ``out_dir/odom.tum`` and ``out_dir/joints.json``.
 
     ``return_mode`` defaults to the scene's (``reverse`` for pipes, ``turn`` for tunnels);
-    ``drift`` is the odometry endpoint error in metres or a preset (``none``, ``low`` 0.2,
-    ``medium`` 1.7, ``high`` 13.3). ``odometry="kiss-icp"`` replaces the drift model by a
-    real LiDAR odometry (KISS-ICP) run on the simulated scans (``drift`` is then ignored).
+    ``drift`` is a drift profile (:mod:`decod_rs.sim.drift`): the odometry endpoint error in
+    metres or a preset (``none``, ``low`` 0.2, ``medium`` 1.7, ``high`` 13.3), or per-leg scale
+    errors ``"legs:OUT,RET"`` (``"legs:-0.05,-0.15"``: the odometry reports 95 % of the
+    outbound distance and 85 % of the return). ``scene_overrides`` change the scene builder's
+    parameters (``radius_m``, ``segment_length_m``, ``ring_width_m``, ``arch_spacing_m``, ...;
+    an unknown key is a ``ValueError`` listing the valid ones; the sensor mount follows the
+    radius, :func:`decod_rs.sim.scenes.defaults_for`). ``odometry="kiss-icp"`` replaces the
+    drift model by a real LiDAR odometry (KISS-ICP) run on the simulated scans (``drift`` is
+    then ignored).
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
@@ -397,6 +425,7 @@ def simulate(
         identical_joints=identical_joints,
         speed_mps=speed_mps,
         sensor_overrides=sensor_overrides,
+        scene_overrides=scene_overrides,
     )
     kiss = KissOdometry(scene, sim.gt_poses[0]) if odometry == "kiss-icp" else None
     odom_poses = sim.drift.odom_poses.copy()

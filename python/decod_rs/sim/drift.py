@@ -2,7 +2,11 @@
 along the corridor axis, as LiDAR odometry drifts in a degenerate corridor (the walls
 constrain lateral motion and attitude; nothing constrains the axial translation).
 
-Error model, all as functions of the travelled distance ``d`` (no drift while standing still):
+Two models, chosen by a *profile* (``drift=`` of the simulator, :func:`odometry_for_profile`):
+
+**Endpoint model** (a number of metres, or a preset of ``DRIFT_PRESETS``: ``none``, ``low``,
+``medium``, ``high``). All as functions of the travelled distance ``d`` (no drift while
+standing still):
 
 - axial: ``e_x(d) = a * (integral of s(d) dx + W(d)) + (E_x - a * raw(D)) * d / D``, i.e. a
   slowly varying scale error ``s(d)`` (mean ~1 %, varying over ~5 m), a smoothed random walk
@@ -12,12 +16,31 @@ Error model, all as functions of the travelled distance ``d`` (no drift while st
   (pitch), applied in the world frame; the lateral/vertical position errors are their
   integrals along the path (the odometry map bends consistently), capped at 20 % of ``E``;
 - ``E_x`` is chosen so the endpoint translation error ``|p_odom - p_gt|`` at the last stamp
-  equals the requested ``endpoint_m`` exactly (to float precision).
+  equals the requested ``endpoint_m`` exactly (to float precision). The error is symmetric in
+  the sense that nothing distinguishes the two legs.
+
+**Leg-scale model** (``"legs:OUT,RET"``, e.g. ``"legs:-0.05,-0.15"``): the odometry measures
+every displacement of the outbound leg scaled by ``1 + OUT`` and every displacement of the
+return leg by ``1 + RET`` (``-0.05``: it reports 95 % of the distance driven), as a LiDAR
+odometry whose axial under-estimate depends on the direction of travel (sensor looking
+forward on one leg and backward on the other, a different speed). The legs are split at the
+turnaround: ``split_index`` (the simulator passes the far-end arrival scan of the
+trajectory; by default the scan farthest from the start). Added to the scale error, all
+functions of the travelled distance ``d`` and seeded:
+
+- an axial random walk of ``1 cm / sqrt(m)`` (smoothed over ~1 m);
+- yaw and pitch random walks of ``0.1 mrad / sqrt(m)`` and ``0.05 mrad / sqrt(m)`` (smoothed
+  over ~5 m), applied in the world frame as in the endpoint model, with their integrals along
+  the path as lateral/vertical position error.
+
+With a one-way length ``L`` the axial error is ``OUT * L`` at the turnaround and
+``(OUT - RET) * L`` at the end (``legs:-0.05,-0.15``: -5 % of ``L`` at the far end, ``+0.10
+L`` back at the start), plus the random walk.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -33,6 +56,9 @@ DRIFT_PRESETS: dict[str, float] = {
 }
 
 
+LEGS_PREFIX = "legs:"
+
+
 def resolve_drift(drift: float | str) -> float:
     """Endpoint error in metres from a number or a preset name (``DRIFT_PRESETS``)."""
     if isinstance(drift, str):
@@ -42,7 +68,8 @@ def resolve_drift(drift: float | str) -> float:
             drift = float(drift)
         except ValueError:
             raise ValueError(
-                f"drift must be metres or one of {sorted(DRIFT_PRESETS)}, got {drift!r}"
+                f"drift must be metres, one of {sorted(DRIFT_PRESETS)} or "
+                f"'{LEGS_PREFIX}OUT,RET' (scale errors per leg), got {drift!r}"
             ) from None
     value = float(drift)
     if not np.isfinite(value) or value < 0.0:
@@ -62,6 +89,51 @@ class DriftResult:
     max_axial_m: float
     yaw_end_rad: float
     pitch_end_rad: float
+    model: str = "endpoint"
+    split_index: int | None = None
+    turnaround_axial_m: float | None = None
+
+
+@dataclass(frozen=True)
+class LegProfile:
+    """The leg-scale model's parameters (module doc): scale errors of the outbound and the
+    return leg (``-0.05`` = the odometry reports 95 % of the distance) and the random walks."""
+
+    outbound_scale: float
+    return_scale: float
+    axial_walk_m_per_sqrt_m: float = 0.01
+    yaw_walk_rad_per_sqrt_m: float = 1e-4
+    pitch_walk_rad_per_sqrt_m: float = 5e-5
+
+    @property
+    def text(self) -> str:
+        return f"{LEGS_PREFIX}{self.outbound_scale:g},{self.return_scale:g}"
+
+
+def parse_profile(profile: float | str) -> float | LegProfile:
+    """A drift profile: an endpoint error in metres (a number or a ``DRIFT_PRESETS`` name) or
+    a :class:`LegProfile` from ``"legs:OUT,RET"``."""
+    if isinstance(profile, str) and profile.strip().startswith(LEGS_PREFIX):
+        body = profile.strip()[len(LEGS_PREFIX) :]
+        try:
+            out, ret = (float(v) for v in body.split(","))
+        except ValueError:
+            raise ValueError(
+                f"drift profile {profile!r}: expected '{LEGS_PREFIX}OUT,RET' with two scale "
+                "errors, e.g. 'legs:-0.05,-0.15'"
+            ) from None
+        if not (np.isfinite(out) and np.isfinite(ret) and out > -1.0 and ret > -1.0):
+            raise ValueError(
+                f"drift profile {profile!r}: scale errors must be finite and > -1, got {out}, {ret}"
+            )
+        return LegProfile(out, ret)
+    return resolve_drift(profile)
+
+
+def turnaround_index(gt_poses: F64) -> int:
+    """The scan farthest from the start (the far end of an out-and-back run)."""
+    p = gt_poses[:, :3, 3]
+    return int(np.argmax(np.linalg.norm(p - p[0], axis=1)))
 
 
 def _smoothed_walk(rng: np.random.Generator, d: F64, step: float, corr: float) -> F64:
@@ -135,3 +207,72 @@ def drift_odometry(
         yaw_end_rad=float(yaw[-1]),
         pitch_end_rad=float(pitch[-1]),
     )
+
+
+def leg_odometry(
+    gt_poses: F64,
+    travelled_m: F64,
+    profile: LegProfile,
+    rng: np.random.Generator,
+    split_index: int | None = None,
+) -> DriftResult:
+    """Apply the leg-scale model (module doc) to ground-truth poses ``(N, 4, 4)`` with
+    travelled distance ``travelled_m (N,)``; the outbound leg ends at ``split_index``
+    (default: the scan farthest from the start)."""
+    n = gt_poses.shape[0]
+    if gt_poses.shape != (n, 4, 4) or travelled_m.shape != (n,):
+        raise ValueError(
+            f"gt_poses must be (N, 4, 4) and travelled_m (N,), got {gt_poses.shape}, "
+            f"{travelled_m.shape}"
+        )
+    split = turnaround_index(gt_poses) if split_index is None else int(split_index)
+    if not 0 <= split < max(n, 1):
+        raise ValueError(f"split_index must be in [0, {n}), got {split}")
+    if n < 2 or travelled_m[-1] <= 0:
+        return DriftResult(gt_poses.copy(), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, "legs", split, 0.0)
+    d = travelled_m
+    steps = np.diff(gt_poses[:, :3, 3], axis=0, prepend=gt_poses[:1, :3, 3])
+    scale = np.where(np.arange(n) <= split, profile.outbound_scale, profile.return_scale)
+    err = np.cumsum(scale[:, None] * steps, axis=0)
+    err[:, 0] += profile.axial_walk_m_per_sqrt_m * _smoothed_walk(rng, d, 0.05, 1.0)
+    yaw = profile.yaw_walk_rad_per_sqrt_m * _smoothed_walk(rng, d, 0.1, 5.0)
+    pitch = profile.pitch_walk_rad_per_sqrt_m * _smoothed_walk(rng, d, 0.1, 5.0)
+    err[:, 1] += np.cumsum(yaw * steps[:, 0])
+    err[:, 2] -= np.cumsum(pitch * steps[:, 0])
+
+    odom = gt_poses.copy()
+    odom[:, :3, :3] = rot_z(yaw) @ rot_y(pitch) @ gt_poses[:, :3, :3]
+    odom[:, :3, 3] = gt_poses[:, :3, 3] + err
+    return DriftResult(
+        odom_poses=odom,
+        endpoint_error_m=float(np.linalg.norm(err[-1])),
+        endpoint_axial_m=float(err[-1, 0]),
+        endpoint_lateral_m=float(np.hypot(err[-1, 1], err[-1, 2])),
+        max_axial_m=float(np.max(np.abs(err[:, 0]))),
+        yaw_end_rad=float(yaw[-1]),
+        pitch_end_rad=float(pitch[-1]),
+        model="legs",
+        split_index=split,
+        turnaround_axial_m=float(err[split, 0]),
+    )
+
+
+def odometry_for_profile(
+    gt_poses: F64,
+    travelled_m: F64,
+    profile: float | str,
+    rng: np.random.Generator,
+    split_index: int | None = None,
+) -> DriftResult:
+    """Odometry poses from ground truth for a drift ``profile`` (module doc: metres or a
+    preset for the endpoint model, ``"legs:OUT,RET"`` for the leg-scale model), without
+    simulating scans: e.g. several odometry TUM files for one simulated log (``decod run
+    --odom-tum``). ``split_index``: the last outbound scan (default: the farthest from the
+    start); the endpoint model reports the axial error there too."""
+    parsed = parse_profile(profile)
+    if isinstance(parsed, LegProfile):
+        return leg_odometry(gt_poses, travelled_m, parsed, rng, split_index)
+    res = drift_odometry(gt_poses, travelled_m, parsed, rng)
+    split = turnaround_index(gt_poses) if split_index is None else int(split_index)
+    axial = res.odom_poses[split, 0, 3] - gt_poses[split, 0, 3]
+    return replace(res, split_index=split, turnaround_axial_m=float(axial))
