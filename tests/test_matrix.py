@@ -1,0 +1,235 @@
+"""The generalisation matrix's pure helpers: cell list, visibility, coverage, tables, targets
+(no simulation, no run)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from decod_rs.bench.matrix import (
+    MAX_FULL_RING_M,
+    QUICK,
+    SYMMETRIC,
+    UNEVEN,
+    evaluate_targets,
+    format_markdown,
+    format_row,
+    full_cells,
+    full_ring_distance_m,
+    joint_coverage,
+    loop_summary,
+    ring_distance_for,
+    tier_cells,
+    zero_loop_reason,
+)
+from decod_rs.sim import scene_params
+from decod_rs.sim.sensors import sensor_spec
+
+
+@pytest.fixture(scope="module")
+def cells():
+    return full_cells()
+
+
+def test_full_tier_spans_the_matrix(cells) -> None:
+    names = [c.name for c in cells]
+    assert len(names) == len(set(names))
+    combos = {(c.scene, c.sensor) for c in cells if not c.variant}
+    assert combos == {
+        ("hume", "avia"),
+        ("hume", "spin16"),
+        ("pe", "avia"),
+        ("pe", "spin16"),
+        ("shield", "spin64"),
+        ("shield", "avia"),
+        ("horseshoe", "avia"),
+        ("horseshoe", "spin16"),
+        ("horseshoe", "spin64"),
+    }
+    for scene, sensor in combos:
+        base = [c for c in cells if (c.scene, c.sensor) == (scene, sensor) and not c.variant]
+        assert {(c.return_mode, c.seed) for c in base} == {
+            (m, s) for m in ("reverse", "turn") for s in (0, 1)
+        }
+    assert all(set(c.profiles) == {SYMMETRIC, UNEVEN} for c in cells)
+    assert all(25.0 <= c.length_m <= 40.0 for c in cells)
+    # Every cell's sensor sees the whole ring within 12 m; the shield with 16 beams does not.
+    assert all(ring_distance_for(c.scene, c.sensor, c.scene_overrides) <= 12.0 for c in cells)
+    assert ring_distance_for("shield", "spin16") > MAX_FULL_RING_M
+
+
+def test_variants_span_the_ranges_and_some_are_held_out(cells) -> None:
+    diam = [2 * scene_params(c.scene, c.scene_overrides)["radius_m"] for c in cells]
+    pipes = [d for d, c in zip(diam, cells, strict=True) if c.scene in ("hume", "pe")]
+    tunnels = [d for d, c in zip(diam, cells, strict=True) if c.scene not in ("hume", "pe")]
+    assert min(pipes) == pytest.approx(0.3) and max(pipes) == pytest.approx(1.2)
+    assert min(tunnels) == pytest.approx(3.0) and max(tunnels) == pytest.approx(10.0)
+    key = {"hume": "segment_length_m", "pe": "segment_length_m"}
+    spacing = [
+        scene_params(c.scene, c.scene_overrides)[key[c.scene]] for c in cells if c.scene in key
+    ]
+    assert min(spacing) == 1.0 and max(spacing) == 6.0
+    speeds = [c.speed_mps for c in cells if c.speed_mps is not None]
+    assert min(speeds) == 0.2 and max(speeds) == 2.0
+    held = {c.name for c in cells if c.held_out}
+    assert held == {
+        "hume-avia-reverse-s0-d1.0",
+        "pe-avia-reverse-s0-j3",
+        "shield-avia-turn-s0-w9",
+        "horseshoe-spin16-turn-s0-v2.0",
+    }
+    assert [c.name for c in cells if c.identical_joints] == ["hume-avia-reverse-s0-aliased"]
+
+
+def test_quick_tier_and_filter() -> None:
+    quick = tier_cells("quick")
+    assert [c.name for c in quick] == list(QUICK)
+    assert {c.scene for c in quick} == {"hume", "pe", "shield", "horseshoe"}
+    assert any(UNEVEN in c.profiles for c in quick) and any(c.held_out for c in quick)
+    assert any(c.identical_joints for c in quick)
+    assert [c.name for c in tier_cells("full", "w9")] == ["shield-avia-turn-s0-w9"]
+    with pytest.raises(ValueError, match="tier"):
+        tier_cells("huge")
+
+
+def test_full_ring_distance_follows_the_field_of_view() -> None:
+    spin16 = sensor_spec("spin16")
+    # On the axis of a round pipe: the crown enters the +-15 deg fan at r / tan(15 deg).
+    d = full_ring_distance_m(spin16, 1.0, 0.0)
+    assert d == pytest.approx(1.0 / math.tan(math.radians(15.0)), abs=0.05)
+    # A sensor lower in the section needs more distance; a floor hides nothing above it.
+    assert full_ring_distance_m(spin16, 1.0, -0.5) > d
+    assert full_ring_distance_m(spin16, 1.0, 0.0, floor_z_m=-0.6) == pytest.approx(d, abs=0.05)
+    assert full_ring_distance_m(spin16, 100.0, 0.0) == math.inf
+
+
+def test_joint_coverage_counts_joints_seen_twice() -> None:
+    joints = np.array([1.0, 3.0, 5.0, 7.0])
+    out_x = np.array([1.1, 3.05, 5.2, 9.0])
+    ret_x = np.array([0.95, 3.2, 7.0])  # joint 5 only outbound, 7 only on the return
+    closed = np.array([3.1, 7.0])  # a loop at 7 does not count: 7 was not seen twice
+    assert joint_coverage(joints, out_x, ret_x, closed) == (2, 1, 0.5)
+    assert joint_coverage(joints, out_x, np.zeros(0), closed) == (0, 0, None)
+
+
+def test_zero_loop_reason_names_the_first_missing_piece() -> None:
+    report = {
+        "counts": {"landmarks": 0, "queries": 0},
+        "extraction_rejections": {"few_points": 5, "no_axis": 2},
+    }
+    assert zero_loop_reason(report, 0, 0) == "no landmark extracted (few_points 5, no_axis 2)"
+    report["counts"] = {"landmarks": 10, "queries": 0}
+    assert zero_loop_reason(report, 10, 0) == "no landmark on the return pass"
+    report["counts"] = {"landmarks": 20, "queries": 9}
+    report["query_rejections"] = {"not_unique": 6, "too_few_inliers": 3}
+    assert zero_loop_reason(report, 10, 10) == (
+        "all 9 queries rejected: not_unique 6, too_few_inliers 3"
+    )
+
+
+def _fake_result() -> dict:
+    loops = {
+        "fine": {
+            "tolerance_m": 0.3,
+            "common_queries": 4,
+            "accepted": 2,
+            "true_positives": 2,
+            "false_positives": 0,
+            "recall_at_1": 0.5,
+            "precision_at_1": 1.0,
+        },
+        "coarse": {
+            "tolerance_m": 1.2,
+            "common_queries": 5,
+            "accepted": 2,
+            "true_positives": 2,
+            "false_positives": 0,
+            "recall_at_1": 0.4,
+            "precision_at_1": 1.0,
+        },
+    }
+    rows = [
+        {"accepted": True, "axial_error_m": 0.01, "lateral_offset_m": 0.01},
+        {"accepted": True, "axial_error_m": 0.2, "lateral_offset_m": 0.01},
+        {"accepted": False, "axial_error_m": 0.9, "lateral_offset_m": 0.01},
+        {"accepted": False, "axial_error_m": 5.0, "lateral_offset_m": 0.01},
+        {"accepted": False, "axial_error_m": None, "lateral_offset_m": None},
+    ]
+    return {"queries": 5, "accepted": 2, "lateral_gate_m": 2.4, "loops": loops, "loop_rows": rows}
+
+
+def _row(**kw) -> dict:
+    row = {
+        "cell": "hume-avia-reverse-s0",
+        "profile": SYMMETRIC,
+        "variant": "",
+        "held_out": False,
+        "aliased": False,
+        "status": "ok",
+        **loop_summary(_fake_result()),
+        "landmarks_per_submap": 1.5,
+        "joints_seen_both": 4,
+        "joints_closed": 3,
+        "coverage": 0.75,
+        "odom_endpoint_m": 3.0,
+        "corr_endpoint_m": 0.1,
+        "odom_rmse_m": 1.5,
+        "corr_rmse_m": 0.5,
+        "endpoint_reduction_percent": 96.7,
+        "turnaround_odom_percent": -5.0,
+        "turnaround_corr_percent": -4.9,
+        "realtime_factor": 80.0,
+        "reason": "",
+    }
+    row.update(kw)
+    return row
+
+
+def test_loop_summary_reads_evaluate_run() -> None:
+    s = loop_summary(_fake_result())
+    assert (s["top1_correct_fine"], s["top1_correct_coarse"]) == (2, 3)
+    assert (s["precision_fine"], s["recall_coarse"], s["false_positives_coarse"]) == (1.0, 0.4, 0)
+
+
+def test_table_rows_and_sections() -> None:
+    line = format_row(_row())
+    assert line.startswith("| hume-avia-reverse-s0 |  | symmetric | 1.50 | 5 | 2 / 3 | 2 |")
+    assert "| 100 % | 50 % | 100 % | 40 % | 75 % (3/4) | 3.00 → 0.10 | 1.50 → 0.50 |" in line
+    assert "| -5.0 → -4.9 | 80 |" in line
+    err = format_row({"cell": "x", "profile": UNEVEN, "status": "error", "error": "E: a|b"})
+    assert err.endswith("| ERROR: E: a/b |") and err.count("|") == line.count("|")
+    rows = [_row(), _row(cell="pe-avia-reverse-s0-j3", held_out=True, variant="joint spacing 3 m")]
+    md = format_markdown(rows, {"tier": "quick", "elapsed_s": 60.0})
+    tuned, held = md.split("## Held-out cells")
+    assert "hume-avia-reverse-s0 |" in tuned and "pe-avia-reverse-s0-j3" not in tuned
+    assert "pe-avia-reverse-s0-j3 | joint spacing 3 m" in held.split("## Targets")[0]
+    assert "- **every cell ran**: PASS" in md
+
+
+def test_targets_name_the_failing_cells() -> None:
+    rows = [
+        _row(),
+        _row(cell="a", precision_fine=0.9, false_positives_coarse=1),
+        _row(cell="b", coverage=None, corr_rmse_m=2.0, endpoint_reduction_percent=50.0),
+        _row(cell="c", odom_endpoint_m=0.5, endpoint_reduction_percent=10.0),
+        _row(cell="alias", aliased=True, accepted=1, coverage=None),
+        _row(cell="h", held_out=True, coverage=0.2),
+        {"cell": "boom", "profile": SYMMETRIC, "status": "error", "error": "x"},
+    ]
+    t = {e["target"]: e for e in evaluate_targets(rows)}
+    prec = t["precision@1 >= 98 % at 0.3 m"]
+    assert prec["tuned"]["status"] == "FAIL" and prec["tuned"]["failing"] == ["a/symmetric"]
+    assert prec["held_out"]["status"] == "PASS"
+    assert t["no accepted loop beyond the coarse tolerance"]["tuned"]["failing"] == ["a/symmetric"]
+    cov = t["joint coverage >= 50 %"]
+    assert cov["tuned"]["failing"] == ["b/symmetric"]  # aliased cell not counted
+    assert cov["held_out"]["failing"] == ["h/symmetric"]
+    endpoint = t["endpoint reduced >= 80 % where odometry drifted >= 1 m"]["tuned"]
+    assert endpoint["failing"] == ["b/symmetric"] and endpoint["cells"] == 4  # c drifted < 1 m
+    assert t["RMSE never above odometry"]["tuned"]["failing"] == ["b/symmetric"]
+    assert t["aliased cell has no accepted loop"]["tuned"]["failing"] == ["alias/symmetric"]
+    assert t["aliased cell has no accepted loop"]["held_out"]["status"] == "n/a"
+    md = format_markdown(rows, {})
+    assert "- **every cell ran**: FAIL: boom/symmetric" in md
