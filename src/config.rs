@@ -229,10 +229,37 @@ pub struct MatchingConfig {
     pub consistency_tolerance_m: f64,
     /// Odometry drift allowed per metre of path between two corroborating loops.
     pub consistency_drift_fraction: f64,
+    /// `"null_model"`: accept the Top-1 when chance agreement is unlikely
+    /// (`matching::null_model`: the family-wise chance over the candidates compared is at most
+    /// `false_alarm_rate`, and the runner-up is not itself beyond chance at
+    /// `uniqueness_alpha`); `"fixed"` (paper): `K >= min_inliers` and the score-ratio and
+    /// count margins over the runner-up. Absent from a stored config: `"fixed"`.
+    #[serde(default = "fixed_acceptance")]
+    pub acceptance: String,
+    /// Family-wise chance of accepting a query's Top-1 by accident that the null model allows
+    /// (`acceptance = "null_model"`). Absent from a stored config: 1e-3.
+    #[serde(default = "default_false_alarm_rate")]
+    pub false_alarm_rate: f64,
+    /// The runner-up is "beyond chance" (the query is aliased, `not_unique`) when its own
+    /// family-wise chance is at most this (`acceptance = "null_model"`). Absent: 0.05.
+    #[serde(default = "default_uniqueness_alpha")]
+    pub uniqueness_alpha: f64,
     /// Only loops whose anchors lie within this path length (query and database sides
     /// together) of each other can corroborate, which caps the allowance at
     /// `consistency_tolerance_m + consistency_drift_fraction * consistency_window_m`.
     pub consistency_window_m: f64,
+}
+
+fn fixed_acceptance() -> String {
+    "fixed".into()
+}
+
+fn default_false_alarm_rate() -> f64 {
+    1e-3
+}
+
+fn default_uniqueness_alpha() -> f64 {
+    0.05
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.
@@ -384,6 +411,9 @@ impl DecodConfig {
                 consistency_drift_fraction: 0.02,
                 consistency_window_m: 20.0,
                 field_smoothing_sigma_m: 0.0,
+                acceptance: "null_model".into(),
+                false_alarm_rate: default_false_alarm_rate(),
+                uniqueness_alpha: default_uniqueness_alpha(),
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -570,6 +600,14 @@ impl DecodConfig {
                 "boundary.min_strength_m",
                 self.boundary.min_strength_m >= 0.0,
             ),
+            (
+                "matching.false_alarm_rate",
+                self.matching.false_alarm_rate > 0.0 && self.matching.false_alarm_rate < 1.0,
+            ),
+            (
+                "matching.uniqueness_alpha",
+                self.matching.uniqueness_alpha > 0.0 && self.matching.uniqueness_alpha < 1.0,
+            ),
         ] {
             if !ok {
                 return Err(DecodError::config(
@@ -620,6 +658,11 @@ impl DecodConfig {
                 "matching.normalisation",
                 &self.matching.normalisation,
                 &["five_variable", "scale_only", "none"][..],
+            ),
+            (
+                "matching.acceptance",
+                &self.matching.acceptance,
+                &["null_model", "fixed"][..],
             ),
             (
                 "graph.loop_factor",

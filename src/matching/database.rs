@@ -33,6 +33,7 @@ use serde::{Deserialize, Serialize};
 use super::patches::PatchShape;
 use super::{
     Heading, PairResult, PreparedLandmark, QuerySide, Rejection, check_grids, compare_prepared,
+    null_model,
 };
 use crate::config::MatchingConfig;
 use crate::error::{DecodError, Result};
@@ -74,6 +75,17 @@ pub struct QueryResult {
     pub runner_up_index: Option<usize>,
     /// Number of eligible candidates compared.
     pub eligible: usize,
+    /// Family-wise chance that the best candidate's inliers are chance agreement
+    /// (`null_model`); 1 when not computed.
+    #[serde(default = "one")]
+    pub chance: f64,
+    /// The same for the runner-up (1 when there is none).
+    #[serde(default = "one")]
+    pub runner_up_chance: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 impl QueryResult {
@@ -253,7 +265,7 @@ impl LandmarkDatabase {
         } else {
             entries.iter().enumerate().filter_map(work).collect()
         };
-        Ok(decide(query, entries, &pairs, cfg))
+        Ok(decide(&q, entries, &pairs, cfg))
     }
 }
 
@@ -265,13 +277,60 @@ fn is_unique(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> b
         && k_best - k_second >= cfg.uniqueness_sigma * (k_best + k_second).sqrt()
 }
 
+/// Family-wise chance of `pair` against `n` candidates (`null_model` module docs).
+fn chance_of(
+    q: &PreparedLandmark,
+    c: &PreparedLandmark,
+    pair: &PairResult,
+    n: usize,
+    cfg: &MatchingConfig,
+) -> f64 {
+    let p = null_model::pair_p_value(
+        &q.keypoints,
+        &c.keypoints,
+        pair.heading,
+        q.grid(),
+        pair.matches,
+        pair.inliers,
+        cfg,
+    );
+    null_model::family_wise(p, n)
+}
+
+/// The rejection of the best pair under the configured acceptance rule, if any.
+fn judge(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> Option<Rejection> {
+    if let Some(r) = pair.rejection {
+        return Some(r);
+    }
+    if pair.score <= 0.0 {
+        return Some(Rejection::TooFewInliers);
+    }
+    if !cfg.verification {
+        return None;
+    }
+    if cfg.acceptance == "null_model" {
+        if result.chance > cfg.false_alarm_rate {
+            Some(Rejection::Chance)
+        } else if result.runner_up_chance <= cfg.uniqueness_alpha {
+            Some(Rejection::NotUnique)
+        } else {
+            None
+        }
+    } else if !is_unique(pair, result, cfg) {
+        Some(Rejection::NotUnique)
+    } else {
+        None
+    }
+}
+
 /// Ranks the candidates and applies the acceptance rule (module docs).
 fn decide(
-    query: &Landmark,
+    q: &PreparedLandmark,
     entries: &[PreparedLandmark],
     pairs: &[(usize, PairResult)],
     cfg: &MatchingConfig,
 ) -> QueryResult {
+    let query = &*q.landmark;
     let rank = |p: &PairResult| (p.score, p.inliers);
     let better = |a: &(usize, PairResult), b: Option<&(usize, PairResult)>| {
         b.is_none_or(|o| rank(&a.1) > rank(&o.1) || (rank(&a.1) == rank(&o.1) && a.0 < o.0))
@@ -309,6 +368,8 @@ fn decide(
         runner_up_inliers: second.map_or(0, |s| s.1.inliers),
         runner_up_index: second.map(|s| s.0),
         eligible: pairs.len(),
+        chance: 1.0,
+        runner_up_chance: 1.0,
     };
     let Some((index, pair)) = best else {
         if !entries.is_empty() {
@@ -322,15 +383,14 @@ fn decide(
     result.candidate_origin_in_submap = c.origin_in_submap;
     result.candidate_axis_in_submap = c.axis_in_submap;
     result.pair = Some(pair.clone());
-    result.rejection = if let Some(r) = pair.rejection {
-        Some(r)
-    } else if pair.score <= 0.0 {
-        Some(Rejection::TooFewInliers)
-    } else if cfg.verification && !is_unique(pair, &result, cfg) {
-        Some(Rejection::NotUnique)
-    } else {
-        None
-    };
+    if cfg.verification {
+        let n = pairs.len();
+        result.chance = chance_of(q, &entries[*index], pair, n, cfg);
+        if let Some((k, p)) = second {
+            result.runner_up_chance = chance_of(q, &entries[*k], p, n, cfg);
+        }
+    }
+    result.rejection = judge(pair, &result, cfg);
     result.accepted = result.rejection.is_none();
     result
 }

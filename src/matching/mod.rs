@@ -18,6 +18,7 @@ pub mod database;
 pub mod heading;
 pub mod keypoints;
 pub mod normalise;
+pub mod null_model;
 pub mod patches;
 pub mod synthetic;
 pub mod verify;
@@ -50,6 +51,8 @@ pub enum Rejection {
     TooFewInliers,
     /// The best candidate does not beat the runner-up by `uniqueness_ratio` (aliasing).
     NotUnique,
+    /// The null model ([`null_model`]) explains the inliers as chance agreement.
+    Chance,
 }
 
 impl Rejection {
@@ -61,6 +64,7 @@ impl Rejection {
             Rejection::InsufficientOverlap => "insufficient_overlap",
             Rejection::TooFewInliers => "too_few_inliers",
             Rejection::NotUnique => "not_unique",
+            Rejection::Chance => "chance",
         }
     }
 }
@@ -317,10 +321,22 @@ fn compare_heading(
     result.dz_m = sign * consensus.dz_cells * q.landmark.descriptor.cell_z_m;
     let dp = sign * consensus.dp_cells / cols as f64;
     result.dp = if dp >= 0.5 { dp - 1.0 } else { dp };
-    if cfg.verification && consensus.inliers < cfg.min_inliers {
+    if cfg.verification && consensus.inliers < pair_floor(cfg) {
         result.rejection = Some(Rejection::TooFewInliers);
     }
     result
+}
+
+/// The inlier count below which a pair is rejected on its own: `min_inliers` under the
+/// paper's fixed rule; under the null model ([`null_model`]) 3, the fewest correspondences
+/// that say more than "one translation fits two points", the rest being the null model's
+/// decision per query.
+pub fn pair_floor(cfg: &MatchingConfig) -> usize {
+    if cfg.acceptance == "null_model" {
+        3
+    } else {
+        cfg.min_inliers
+    }
 }
 
 #[cfg(test)]

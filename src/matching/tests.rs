@@ -430,3 +430,56 @@ fn pipe_grid_matches_and_degenerate_input_is_handled() {
         Err(DecodError::InvalidInput { .. })
     ));
 }
+
+/// Queries of one pipe's joints against a database of another pipe's joints (every Top-1 is
+/// wrong): the fraction accepted, over `queries` queries against `n` candidates.
+fn false_accept_rate(c: &MatchingConfig, n: u64, queries: u64, seed: u64) -> f64 {
+    let g = Grid::tunnel();
+    let mut rng = Rng::new(seed);
+    let mut db = LandmarkDatabase::new(c);
+    let other: Vec<Landmark> = (0..n)
+        .map(|k| joint(seed, k).observe(&Observation::random(&g, k as f64, false, &mut rng), k))
+        .collect();
+    db.extend(other).unwrap();
+    let qs: Vec<Landmark> = (0..queries)
+        .map(|k| {
+            let obs = Observation::random(&g, 1e5 + k as f64, k % 2 == 0, &mut rng);
+            joint(seed + 1000, k).observe(&obs, 50_000 + k)
+        })
+        .collect();
+    let results = db.query_batch(&qs, c).unwrap();
+    results.iter().filter(|r| r.accepted).count() as f64 / queries as f64
+}
+
+#[test]
+fn null_model_rejects_unrelated_pairs_at_the_promised_rate() {
+    // A lax promise (5 % of queries may accept a wrong Top-1 by chance) so a finite test can
+    // see violations: 200 queries, binomial sd 1.5 %; the bound holds with 3 sd to spare.
+    for (cap, n) in [(16, 20), (64, 20), (64, 400)] {
+        let c = MatchingConfig {
+            max_keypoints: cap,
+            false_alarm_rate: 0.05,
+            ..cfg()
+        };
+        let rate = false_accept_rate(&c, n, 200, 31 + cap as u64);
+        eprintln!("null model: {cap} keypoints, {n} candidates: false accepts {rate:.3}");
+        assert!(
+            rate <= 0.05 + 3.0 * (0.05f64 * 0.95 / 200.0).sqrt(),
+            "{rate}"
+        );
+    }
+}
+
+#[test]
+fn null_model_keeps_true_loops_for_any_keypoint_count() {
+    for cap in [16, 32, 64] {
+        let c = MatchingConfig {
+            max_keypoints: cap,
+            ..cfg()
+        };
+        let (p, r, a) = precision_recall(&c, 50, 23);
+        eprintln!("null model, {cap} keypoints: precision {p:.3} recall {r:.3} accepted {a}");
+        assert!(p == 1.0, "precision {p}");
+        assert!(r >= 0.6, "recall {r} with {cap} keypoints");
+    }
+}

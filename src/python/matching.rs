@@ -183,7 +183,7 @@ impl PyQueryResult {
         self.inner.accepted
     }
     /// Why not accepted (`ineligible`, `no_candidates`, `insufficient_overlap`,
-    /// `too_few_inliers`, `not_unique`), or None.
+    /// `too_few_inliers`, `chance`, `not_unique`), or None.
     #[getter]
     fn rejection(&self) -> Option<&'static str> {
         self.inner.rejection.map(|r| r.as_str())
@@ -207,6 +207,17 @@ impl PyQueryResult {
     #[getter]
     fn eligible(&self) -> usize {
         self.inner.eligible
+    }
+    /// Family-wise chance that the best candidate's inliers are chance agreement (null
+    /// model; 1 when not computed).
+    #[getter]
+    fn chance(&self) -> f64 {
+        self.inner.chance
+    }
+    /// The same for the runner-up (1 when there is none).
+    #[getter]
+    fn runner_up_chance(&self) -> f64 {
+        self.inner.runner_up_chance
     }
     /// The result as JSON.
     fn to_json(&self) -> PyResult<String> {
