@@ -168,6 +168,7 @@ def _row(**kw) -> dict:
         "held_out": False,
         "aliased": False,
         "status": "ok",
+        "preset": "pipe",
         **loop_summary(_fake_result()),
         "landmarks_per_submap": 1.5,
         "joints_seen_both": 4,
@@ -195,7 +196,7 @@ def test_loop_summary_reads_evaluate_run() -> None:
 
 def test_table_rows_and_sections() -> None:
     line = format_row(_row())
-    assert line.startswith("| hume-avia-reverse-s0 |  | symmetric | 1.50 | 5 | 2 / 3 | 2 |")
+    assert line.startswith("| hume-avia-reverse-s0 |  | symmetric | pipe | 1.50 | 5 | 2 / 3 | 2 |")
     assert "| 100 % | 50 % | 100 % | 40 % | 75 % (3/4) | 3.00 → 0.10 | 1.50 → 0.50 |" in line
     assert "| -5.0 → -4.9 | 80 |" in line
     err = format_row({"cell": "x", "profile": UNEVEN, "status": "error", "error": "E: a|b"})

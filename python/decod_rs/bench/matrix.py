@@ -32,7 +32,9 @@ with an endpoint error of 3 % of the one-way length (the log's own ``/odom``); `
 ``legs:-0.05,-0.15`` (outbound 95 % of the distance, return 85 %), made from ground truth
 without re-simulating; ``kiss-icp`` (``--kiss``, only if ``import kiss_icp`` works) = KISS-ICP
 run on the log's scans, reported only where it tracks (max lateral error below the radius).
-Each profile's odometry is written as a TUM file and passed to ``run_log(odom_tum=...)``.
+Each profile's odometry is written as a TUM file and passed to ``run_log(odom_tum=...)``
+with ``run_log``'s default preset (what a user gets), or ``--preset P`` for every cell
+(``--preset scene``: ``pipe`` in pipes, ``tunnel`` in tunnels).
 
 **Held out** (``Cell.held_out``): the 1.0 m hume pipe, the pe pipe with 3 m joints, the 9 m
 shield tunnel and the horseshoe at 2 m/s stand for the logs we will never see: keep them out
@@ -82,6 +84,7 @@ from decod_rs.sim.sensors import SensorSpec, sensor_spec
 
 FloatArray = NDArray[np.float64]
 
+#: ``--preset scene``: the fixed preset of each scene's corridor kind.
 PRESET_FOR = {"hume": "pipe", "pe": "pipe", "shield": "tunnel", "horseshoe": "tunnel"}
 #: Sensors tried per scene, the main one first; :func:`sees_walls` filters them.
 SENSOR_CANDIDATES: dict[str, tuple[str, ...]] = {
@@ -400,7 +403,7 @@ def _pair(a: float | None, b: float | None, fmt: str = "{:.2f}") -> str:
 
 
 TABLE_HEADER = (
-    "| cell | variant | drift | lm/submap | queries | top-1 ok 0.3 m / coarse | accepted "
+    "| cell | variant | drift | preset | lm/submap | queries | top-1 ok 0.3 m / coarse | accepted "
     "| P@1 0.3 m | R@1 0.3 m | P@1 coarse | R@1 coarse | coverage | endpoint m "
     "| RMSE m | far-end axial % | x RT | note |"
 )
@@ -412,11 +415,12 @@ def format_row(r: dict[str, Any]) -> str:
     if r.get("status") != "ok":
         note = r.get("error") or r.get("reason") or r.get("status", "")
         label = "ERROR" if r.get("status") == "error" else "skipped"
-        return head + "| - " * 13 + f"| {label}: {_escape(str(note))} |"
+        return head + "| - " * 14 + f"| {label}: {_escape(str(note))} |"
     lps = r.get("landmarks_per_submap")
     cov = r.get("coverage")
     cov_text = "-" if cov is None else f"{_pct(cov)} ({r['joints_closed']}/{r['joints_seen_both']})"
     cells = [
+        str(r.get("preset") or "-"),
         "-" if lps is None else f"{lps:.2f}",
         str(r["queries"]),
         f"{r['top1_correct_fine']} / {r['top1_correct_coarse']}",
@@ -462,7 +466,7 @@ def format_markdown(rows: Sequence[dict[str, Any]], meta: dict[str, Any]) -> str
     lines = [
         "# Generalisation matrix",
         "",
-        f"Tier {meta.get('tier', '?')}, preset {meta.get('preset', 'per scene')}, "
+        f"Tier {meta.get('tier', '?')}, preset {meta.get('preset', 'run_log default')}, "
         f"{len({r['cell'] for r in rows})} cells, {len(rows)} rows, "
         f"{meta.get('elapsed_s', 0.0) / 60.0:.1f} min. Drift: symmetric = endpoint model at "
         f"{100 * SYMMETRIC_ENDPOINT_FRACTION:.0f} % of the one-way length; uneven = "
@@ -711,8 +715,18 @@ def pass_summary(run_dir: Path, sim_dir: Path, result: dict[str, Any]) -> dict[s
     }
 
 
+def _preset_used(report: dict[str, Any]) -> str:
+    """The preset a run used, from its ``report.json`` (``auto (pipe)`` for an automatic
+    configuration that measured a pipe)."""
+    preset = str(report.get("preset", "?"))
+    auto = report.get("auto")
+    if isinstance(auto, dict) and auto.get("corridor"):
+        return f"{preset} ({auto['corridor']})"
+    return preset
+
+
 def run_profile(
-    cell: Cell, sim_dir: Path, prof_dir: Path, profile: str, preset: str
+    cell: Cell, sim_dir: Path, prof_dir: Path, profile: str, preset: str | None
 ) -> dict[str, Any]:
     """Write the profile's odometry, run DeCOD on the cell's log with it, evaluate, and
     return the metrics (module doc)."""
@@ -723,14 +737,16 @@ def run_profile(
     run_dir = prof_dir / "run"
     if run_dir.exists():
         shutil.rmtree(run_dir)
+    # No preset: run_log's default (the one a user gets).
+    chosen: dict[str, Any] = {} if preset is None else {"preset": preset}
     run_log(
         sim_dir / "log",
         run_dir,
-        preset=preset,
         odom_tum=odom,
         imu_topic="/imu",
         progress=False,
         plots=False,
+        **chosen,
     )
     result, _ = evaluate_run(run_dir, sim_dir / "gt.tum", sim_dir / "joints.json")
     report = json.loads((run_dir / "report.json").read_text(encoding="utf-8"))
@@ -741,6 +757,7 @@ def run_profile(
         **pass_summary(run_dir, sim_dir, result),
         "landmarks": int(counts.get("landmarks", 0)),
         "submaps": int(counts.get("submaps", 0)),
+        "preset": _preset_used(report),
         "realtime_factor": report.get("realtime_factor"),
         "time_run_s": float(sum(report.get("timings_s", {}).values())),
         "query_rejections": report.get("query_rejections", {}),
@@ -755,7 +772,7 @@ def run_profile(
     return row
 
 
-def _base_row(cell: Cell, profile: str, preset: str) -> dict[str, Any]:
+def _base_row(cell: Cell, profile: str, preset: str | None) -> dict[str, Any]:
     return {
         "cell": cell.name,
         "profile": profile,
@@ -788,7 +805,7 @@ def run_cell(cell: Cell, out: Path, preset: str | None, kiss: bool) -> list[dict
     """Simulate the cell (cached) and run every profile on it; one result row per profile,
     also written to ``out/cells/NAME/PROFILE/cell.json``. Exceptions become error rows."""
     cell_dir = out / "cells" / cell.name
-    used_preset = preset or PRESET_FOR[cell.scene]
+    used_preset = PRESET_FOR[cell.scene] if preset == "scene" else preset
     profiles = [*cell.profiles, *([KISS] if kiss else [])]
     rows = []
     try:
@@ -879,7 +896,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--tier", choices=["quick", "full"], default="quick")
     p.add_argument("--only", default=None, help="only cells whose name contains SUBSTR")
     p.add_argument(
-        "--preset", default=None, help="decod preset for every cell (default: pipe/tunnel)"
+        "--preset",
+        default=None,
+        help="decod preset for every cell; 'scene' = pipe in pipes, tunnel in tunnels "
+        "(default: run_log's default)",
     )
     p.add_argument("--kiss", action="store_true", help="also KISS-ICP odometry (if installed)")
     p.add_argument("--jobs", type=int, default=1, help="cells run in parallel")
@@ -906,7 +926,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     meta: dict[str, Any] = {
         "tier": args.tier,
         "only": args.only,
-        "preset": args.preset or "per scene (pipes: pipe, tunnels: tunnel)",
+        "preset": {None: "run_log default", "scene": "per scene (pipe / tunnel)"}.get(
+            args.preset, args.preset
+        ),
         "kiss": kiss,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "elapsed_s": 0.0,
