@@ -71,7 +71,9 @@ __all__ = [
 
 
 def tolerances_for(preset: str, joints_x_m: FloatArray | None = None) -> tuple[float, float]:
-    """(fine, coarse) tolerances in metres for ``preset`` (paper §IV-B.3 and §IV-E)."""
+    """(fine, coarse) tolerances in metres for ``preset`` (paper §IV-B.3 and §IV-E); an
+    ``auto`` run is evaluated by the corridor kind it measured (``report.json`` ``auto``),
+    passed here as ``pipe`` or ``tunnel``."""
     if preset == "tunnel":
         return FINE_TOLERANCE_M, TUNNEL_COARSE_TOLERANCE_M
     if preset == "pipe":
@@ -108,12 +110,27 @@ def _axial_lateral(
     return np.abs(axial), lateral
 
 
+def matched_db_origin(loops: LoopTable) -> FloatArray:
+    """The database-side point each row's loop ties to the query origin: the candidate's
+    origin moved by the verified axial offset (``dz_m`` along the candidate axis, sign by
+    ``heading_deg``), which is what the 5-DoF factor uses. Rows of a ``loops.csv`` without
+    those columns (other tools) keep the candidate's origin."""
+    dz = loops.extra.get("dz_m")
+    heading = loops.extra.get("heading_deg")
+    if dz is None or heading is None:
+        return loops.db_origin
+    shift = np.array([float(v) if v else 0.0 for v in dz])
+    sign = np.array([1.0 if (not h or abs(float(h)) < 90.0) else -1.0 for h in heading])
+    return np.asarray(loops.db_origin + (shift * sign)[:, None] * loops.db_axis)
+
+
 def loop_geometry_errors(
     loops: LoopTable, gt_stamps: FloatArray, gt_poses: FloatArray
 ) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
     """Per row: ``supported`` (L,) (both stamps inside the ground truth; a row without a
     candidate is supported if its query stamp is), axial and lateral errors (L,) in metres
-    (NaN where unsupported or no candidate)."""
+    (NaN where unsupported or no candidate) of the plane the loop asserts
+    (:func:`matched_db_origin`)."""
     t0, t1 = gt_stamps[0], gt_stamps[-1]
     has_q = (loops.query_stamp >= t0) & (loops.query_stamp <= t1)
     has_db = np.isfinite(loops.db_stamp) & (loops.db_stamp >= t0) & (loops.db_stamp <= t1)
@@ -130,7 +147,11 @@ def loop_geometry_errors(
             loops.query_axis[both],
         )
         o_db, _ = _planes_in_world(
-            gt_stamps, gt_poses, loops.db_stamp[both], loops.db_origin[both], loops.db_axis[both]
+            gt_stamps,
+            gt_poses,
+            loops.db_stamp[both],
+            matched_db_origin(loops)[both],
+            loops.db_axis[both],
         )
         axial[both], lateral[both] = _axial_lateral(o_q, a_q, o_db)
     return supported, axial, lateral
@@ -333,6 +354,8 @@ def evaluate_run(
             raise ValueError(f"{joints_path}: no `joints_x_m` list")
         joints = np.asarray(doc["joints_x_m"], dtype=np.float64)
     preset = preset or _find_key(report, "preset") or "tunnel"
+    if preset == "auto":
+        preset = (report.get("auto") or {}).get("corridor", "tunnel")
     fine, coarse = tolerances or tolerances_for(str(preset), joints)
     gate = lateral_gate_m if lateral_gate_m is not None else LATERAL_GATE_FACTOR * coarse
     sep = _find_key(report, "min_time_separation_s")

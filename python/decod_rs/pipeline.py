@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
 from decod_rs.graph import LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
@@ -32,11 +33,13 @@ from decod_rs.io import find_imu_topic
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
+from decod_rs.selection import effective_db_origin, select_loops
 from decod_rs.tum import interpolate_poses, write_tum
 
 FloatArray = NDArray[np.float64]
 
 MODES = ("auto", "batch", "online")
+PRESET_CHOICES = ("auto", "tunnel", "pipe")
 
 #: In ``auto`` mode the log is split at the turnaround (the scan farthest from the start) when
 #: the return leg covers at least this fraction of the outbound distance; otherwise every
@@ -184,65 +187,7 @@ def _match(
     return results, mode, len(db)
 
 
-def _effective_db_origin(result: QueryResult) -> FloatArray:
-    """The candidate's origin moved by the verified axial offset, so both origins name the
-    same physical plane (``PairResult.dz_m`` is along the axis in the query's heading)."""
-    sign = 1.0 if abs(result.heading_deg) < 90.0 else -1.0
-    return np.asarray(result.candidate_origin, dtype=np.float64) + (
-        result.dz_m * sign * np.asarray(result.candidate_axis, dtype=np.float64)
-    )
-
-
-def _corroborated(
-    results: list[QueryResult],
-    anchors: dict[float, FloatArray],
-    scan_stamps: FloatArray,
-    scan_odom: FloatArray,
-    cfg: Config,
-) -> list[bool]:
-    """For every result, whether it may stay accepted: an accepted loop needs
-    ``min_corroborating_loops`` other accepted loops (of other query boundaries) nearby that
-    imply the same odometry correction (``MatchingConfig`` doc). Not accepted: False."""
-    m = cfg.matching
-    accepted = [k for k, r in enumerate(results) if r.accepted]
-    if m.min_corroborating_loops <= 0:
-        return [r.accepted for r in results]
-    steps = np.linalg.norm(np.diff(scan_odom[:, :3, 3], axis=0), axis=1)
-    path = np.concatenate([[0.0], np.cumsum(steps)])
-
-    def along(stamp: float) -> float:
-        return float(np.interp(stamp, scan_stamps, path))
-
-    def world(stamp: float, point: FloatArray) -> FloatArray:
-        pose = anchors[stamp]
-        return np.asarray(pose[:3, :3] @ point + pose[:3, 3], dtype=np.float64)
-
-    info = {}
-    for k in accepted:
-        r = results[k]
-        correction = world(r.candidate_stamp, _effective_db_origin(r)) - world(
-            r.query_stamp, np.asarray(r.query_origin, dtype=np.float64)
-        )
-        info[k] = (correction, along(r.query_stamp), along(r.candidate_stamp), r.query_stamp)
-    keep = [False] * len(results)
-    for k in accepted:
-        ck, qk, dk, tk = info[k]
-        support = 0
-        for j in accepted:
-            cj, qj, dj, tj = info[j]
-            if j == k or tj == tk:
-                continue  # another view of the same query submap is not independent
-            separation = abs(qk - qj) + abs(dk - dj)
-            if separation > m.consistency_window_m:
-                continue
-            allowance = m.consistency_tolerance_m + m.consistency_drift_fraction * separation
-            if float(np.linalg.norm(ck - cj)) <= allowance:
-                support += 1
-        keep[k] = support >= m.min_corroborating_loops
-    return keep
-
-
-def _loop_table(results: list[QueryResult], keep: list[bool]) -> LoopTable:
+def _loop_table(results: list[QueryResult], keep: list[bool], reasons: list[str]) -> LoopTable:
     n = len(results)
     nan3 = np.full(3, np.nan)
 
@@ -272,10 +217,8 @@ def _loop_table(results: list[QueryResult], keep: list[bool]) -> LoopTable:
             "runner_up_score": [f"{r.runner_up_score:.6f}" for r in results],
             "runner_up_inliers": [str(r.runner_up_inliers) for r in results],
             "eligible_candidates": [str(r.eligible) for r in results],
-            "reason": [
-                r.rejection or ("" if ok else "uncorroborated")
-                for r, ok in zip(results, keep, strict=True)
-            ],
+            "chance": [f"{r.chance:.3g}" for r in results],
+            "reason": reasons,
         },
     )
 
@@ -292,7 +235,7 @@ def _constraints(
             db_index=index(r.candidate_stamp),
             query_origin=np.asarray(r.query_origin, dtype=np.float64),
             query_axis=np.asarray(r.query_axis, dtype=np.float64),
-            db_origin=_effective_db_origin(r),
+            db_origin=effective_db_origin(r),
             db_axis=np.asarray(r.candidate_axis, dtype=np.float64),
             inliers=r.inliers,
             score=r.score,
@@ -326,7 +269,7 @@ def run_log(
     log: str | Path,
     out_dir: str | Path,
     *,
-    preset: str = "tunnel",
+    preset: str = "auto",
     config_path: str | Path | None = None,
     points_topic: str | None = None,
     odom_topic: str | None = None,
@@ -340,20 +283,33 @@ def run_log(
 ) -> RunSummary:
     """Run DeCOD on ``log`` and write the contract's files into ``out_dir``.
 
+    ``preset="auto"`` measures the corridor from the first scans and derives the spatial
+    parameters (:mod:`decod_rs.autoscale`); ``"pipe"`` / ``"tunnel"`` take the fixed presets.
     ``imu_topic=None`` takes the log's unique IMU topic if there is one (``use_imu=False``:
     never; gravity is then the sensor's -z). ``loops=False`` disables loop closure (the
     output trajectory is then the odometry); the matching still runs and is reported.
     """
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
+    if preset not in PRESET_CHOICES:
+        raise ValueError(f"preset: {preset!r} is not one of {PRESET_CHOICES}")
     log = Path(log)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = load_config(config_path, preset)
     timings: dict[str, float] = {}
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
+    t0 = time.perf_counter()
+    auto: dict[str, Any] | None = None
+    if preset == "auto":
+        probe = probe_corridor(
+            log, points_topic, odom_topic, None if odom_tum is None else Path(odom_tum), imu_topic
+        )
+        cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
+        timings["configure"] = time.perf_counter() - t0
+    else:
+        cfg = load_config(config_path, preset)
 
     t0 = time.perf_counter()
     processor, ex = _extract(
@@ -376,7 +332,7 @@ def run_log(
     split = _split_stamp(scan_stamps, scan_odom)
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
     results, used_mode, db_size = _match(ex.landmarks, anchors, cfg, mode, split)
-    keep = _corroborated(results, anchors, scan_stamps, scan_odom, cfg)
+    keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, cfg.matching)
     timings["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -387,7 +343,7 @@ def run_log(
     t0 = time.perf_counter()
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
     write_tum(out / "corrected.tum", scan_stamps, correction.poses)
-    write_loops_csv(out / "loops.csv", _loop_table(results, keep))
+    write_loops_csv(out / "loops.csv", _loop_table(results, keep, reasons))
     lms = ex.landmarks
     write_landmarks_csv(
         out / "landmarks.csv",
@@ -412,11 +368,10 @@ def run_log(
         timings["plots"] = time.perf_counter() - t0
 
     accepted = sum(keep)
-    reasons: dict[str, int] = {}
-    for r, ok in zip(results, keep, strict=True):
+    rejected: dict[str, int] = {}
+    for why, ok in zip(reasons, keep, strict=True):
         if not ok:
-            key = r.rejection or ("uncorroborated" if r.accepted else "unknown")
-            reasons[key] = reasons.get(key, 0) + 1
+            rejected[why or "unknown"] = rejected.get(why or "unknown", 0) + 1
     summary = RunSummary(
         out_dir=out,
         scans=int(scan_stamps.size),
@@ -435,6 +390,7 @@ def run_log(
         "points_topic": processor.points_topic,
         "imu_topic": imu_topic,
         "preset": preset,
+        "auto": auto,
         "mode": used_mode,
         "split_stamp": split,
         "loops_enabled": loops,
@@ -450,7 +406,7 @@ def run_log(
         },
         "extraction_rejections": ex.rejections,
         "extraction_rejection_messages": ex.rejection_messages[:200],
-        "query_rejections": reasons,
+        "query_rejections": rejected,
         "optimisation": {
             "nodes": int(correction.node_stamps.size),
             "iterations": correction.graph.iterations,

@@ -18,7 +18,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "landmarks.csv, report.json and plots into --out.",
     )
     p.add_argument("log", type=Path, help=".mcap file or rosbag2 directory")
-    p.add_argument("--preset", choices=PRESETS, default="tunnel")
+    p.add_argument(
+        "--preset",
+        choices=("auto", *PRESETS),
+        default="auto",
+        help="auto (default): measure the cross-section, sensor sampling and speed and derive "
+        "every spatial parameter (report.json 'auto' says what and why); pipe / tunnel: fixed",
+    )
     p.add_argument("--points-topic", help="PointCloud2 / Livox CustomMsg topic (default: unique)")
     odom = p.add_mutually_exclusive_group()
     odom.add_argument("--odom-topic", help="odometry topic (default: the unique one)")

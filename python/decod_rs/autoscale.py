@@ -1,0 +1,250 @@
+"""Defaults that scale themselves (``decod run`` without ``--preset``; beyond the paper).
+
+The paper fixes its sampling for 5-10 m GEODE tunnels and scales it down ten times for
+0.4-0.8 m pipes (§IV-E). A user's corridor is neither; so ``auto`` *measures* it and derives
+every spatial parameter from what it measured:
+
+1. **Cross-section.** The first scans of the log are accumulated into a few probe submaps
+   (2 cm voxels, 40 m range, no corridor gates) and the reference contour is fitted: the
+   median contour radius ``r`` over the probes that fit (>= 80 % of points within 0.1 r).
+2. **Where the sensor samples the wall.** For each probe, the wall points are binned by their
+   distance ahead of the sensor along the axis and by angle around the section (36 sectors,
+   bottom +-30 deg excluded, as in the descriptor): ``z_near`` is the nearest distance at
+   which 60 % of the sectors are sampled. A spinning sensor with +-15 deg sees a wall of radius
+   r only from r / tan 15 deg = 3.7 r on; a forward-looking rosette from about r.
+3. **Speed and scan rate** from the log's odometry and scan stamps.
+
+Derived (the tunnel preset, measured on the simulated 6 m shield tunnel, is the reference
+at ``r_ref = 3 m``; ``k = r / r_ref``; the pipe preset is the same rule at k = 0.1):
+
+- voxel ``0.055 k``, contour inlier distance ``0.18 k``, profile bin ``0.01 k``, DoG sigmas
+  ``0.025 k`` / ``0.10 k``, minimum DoG response ``0.002 k``, descriptor half length
+  ``2.4 k`` (0.8 r: the 16 rows then cover the same share of the section in every corridor),
+  circumferential smoothing one column and a half of arc, duplicate radius ``0.4 k`` (within
+  0.1-0.4 m); the minimum range ``0.5 k``;
+- range window: out to where the wall is still seen at ``GRAZING_DEG`` or more
+  (``r / tan``), and at least one descriptor length plus a radius beyond ``z_near`` (so a
+  sensor that sees the wall late still puts whole boundaries into a submap);
+- non-maximum suppression stays 0.8 m: it is about boundary spacing (pipe joints >= 1 m,
+  tunnel rings >= 1.2 m), which does not scale with the section;
+- schedule: an anchor every third of the visible window of travel, ``interval = (max_range -
+  z_near) / (3 v)`` (each boundary is then seen from about three submaps per pass), with
+  every scan in between accumulated; the minimum time between loop partners
+  ``max(10 s, 2 max_range / v + interval)``: two views of the same pass never pair;
+- the elongation gate is only a PCA-ambiguity guard (1.1): a forward-looking sensor sees
+  a 5 m tunnel to 12 m, ratio 1.3, and the corridor test is the contour fit, not how far the
+  sensor sees.
+
+``report.json`` records the measurements and every derived value (``auto``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs import _core
+from decod_rs.config import Config
+from decod_rs.io import read_log
+
+FloatArray = NDArray[np.float64]
+
+R_REF_M = 3.0
+GRAZING_DEG = 8.0
+PROBE_SCANS = 10
+PROBE_COUNT = 4
+PROBE_MAX_SCANS = 300
+COVERAGE_SECTORS = 36
+COVERAGE_FRACTION = 0.6
+
+__all__ = ["CorridorProbe", "auto_config", "derive", "probe_corridor"]
+
+
+@dataclass(frozen=True)
+class CorridorProbe:
+    """What ``auto`` measured: contour radius (m), nearest fully sampled distance ahead of
+    the sensor (m), speed (m/s), scan rate (Hz), probe submaps used."""
+
+    radius_m: float
+    z_near_m: float
+    speed_mps: float
+    scan_rate_hz: float
+    probes: int
+
+
+def _probe_config() -> str:
+    cfg = json.loads(_core.resolve_config_json("tunnel", ""))
+    cfg["submap"].update(voxel_m=0.02, min_range_m=0.1, max_range_m=40.0, min_points=50)
+    cfg["axis"]["min_elongation"] = 1.0
+    cfg["contour"].update(model="auto", inlier_distance_m=100.0, min_inlier_fraction=0.0)
+    return json.dumps(cfg)
+
+
+def _speed(odometry: FloatArray) -> float:
+    """The typical moving speed: median over 1 s windows where the robot moves."""
+    t, p = odometry[:, 0], odometry[:, 1:4]
+    if t.size < 2 or t[-1] - t[0] <= 0:
+        return 0.0
+    grid = np.arange(t[0], t[-1], 1.0)
+    if grid.size < 2:
+        return float(np.linalg.norm(p[-1] - p[0]) / (t[-1] - t[0]))
+    pos = np.stack([np.interp(grid, t, p[:, i]) for i in range(3)], axis=1)
+    v = np.linalg.norm(np.diff(pos, axis=0), axis=1)
+    moving = v[v > 0.02]
+    return float(np.median(moving)) if moving.size else 0.0
+
+
+def _z_near(points: FloatArray, axis: FloatArray, centre: FloatArray, gravity: FloatArray) -> float:
+    """Nearest distance ahead of the sensor (at the origin) at which COVERAGE_FRACTION of the
+    non-bottom sectors hold wall points."""
+    e1 = gravity - axis * float(gravity @ axis)
+    e1 /= max(float(np.linalg.norm(e1)), 1e-12)
+    e2 = np.cross(axis, e1)
+    rel = points - centre
+    z = points @ axis
+    ang = np.degrees(np.arctan2(rel @ e2, rel @ e1))  # 0 deg = down (gravity)
+    keep = (np.abs(ang) > 30.0) & (z > 0)
+    z, ang = z[keep], ang[keep]
+    if z.size == 0:
+        return math.inf
+    step = max(float(np.ptp(z)) / 200.0, 0.01)
+    zb = np.floor(z / step).astype(np.int64)
+    sb = np.floor((ang + 180.0) / 360.0 * COVERAGE_SECTORS).astype(np.int64) % COVERAGE_SECTORS
+    usable = COVERAGE_SECTORS * (300.0 / 360.0)
+    seen = np.zeros((int(zb.max()) + 1, COVERAGE_SECTORS), dtype=bool)
+    seen[zb, sb] = True
+    covered = np.flatnonzero(seen.sum(axis=1) >= COVERAGE_FRACTION * usable)
+    return float(covered[0] * step) if covered.size else math.inf
+
+
+def probe_corridor(
+    log: Path,
+    points_topic: str | None,
+    odom_topic: str | None,
+    odom_tum: Path | None,
+    imu_topic: str | None,
+) -> CorridorProbe:
+    """Measure the corridor from the first scans of ``log`` (module docs, steps 1-3)."""
+    reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic)
+    scans = []
+    for k, rec in enumerate(reader):
+        scans.append(rec)
+        if k + 1 >= PROBE_MAX_SCANS:
+            break
+    if len(scans) < PROBE_SCANS:
+        raise ValueError(
+            f"{log}: auto configuration needs >= {PROBE_SCANS} scans, got {len(scans)}"
+        )
+    cfg = _probe_config()
+    starts = np.linspace(0, len(scans) - PROBE_SCANS, PROBE_COUNT).astype(int)
+    radii, nears = [], []
+    for s in sorted(set(starts.tolist())):
+        window = scans[s : s + PROBE_SCANS]
+        force = [w.specific_force for w in window]
+        submap = _core.build_submap(
+            np.array([w.stamp for w in window]),
+            [w.points.astype(np.float64) for w in window],
+            np.stack([w.pose for w in window]),
+            PROBE_SCANS // 2,
+            None if any(f is None for f in force) else np.stack(force),  # type: ignore[arg-type]
+            cfg,
+        )
+        d = _core.extract_submap(submap, cfg).diagnostics
+        r = d.contour_radius_m
+        if not (np.isfinite(r) and r > 0 and d.contour_median_abs_offset_m < 0.1 * r):
+            continue
+        radii.append(r)
+        axis = np.asarray(d.axis)
+        gravity = np.asarray(submap.gravity)
+        e1 = gravity - axis * float(gravity @ axis)
+        e1 /= max(float(np.linalg.norm(e1)), 1e-12)
+        cu, cv = d.contour_centre_e1e2
+        centre = np.asarray(d.centroid) + cu * e1 + cv * np.cross(axis, e1)
+        nears.append(_z_near(np.asarray(submap.points), axis, centre, gravity))
+    if not radii:
+        raise ValueError(
+            f"{log}: auto configuration found no corridor cross-section in the first "
+            f"{len(scans)} scans; pass --preset pipe|tunnel or --config"
+        )
+    stamps = np.array([s.stamp for s in scans])
+    rate = float(1.0 / np.median(np.diff(stamps))) if stamps.size > 1 else 10.0
+    finite = [z for z in nears if np.isfinite(z)]
+    return CorridorProbe(
+        radius_m=float(np.median(radii)),
+        z_near_m=float(np.median(finite)) if finite else math.inf,
+        speed_mps=_speed(reader.odometry()),
+        scan_rate_hz=rate,
+        probes=len(radii),
+    )
+
+
+def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
+    """The config overrides (on the tunnel preset) for a measured corridor (module docs)."""
+    r = probe.radius_m
+    k = r / R_REF_M
+    half = 2.4 * k
+    grazing = r / math.tan(math.radians(GRAZING_DEG))
+    z_near = probe.z_near_m if np.isfinite(probe.z_near_m) else grazing
+    max_range = max(grazing, z_near + 2.0 * half + r)
+    v = max(probe.speed_mps, 0.05)
+    interval = max((max_range - min(z_near, max_range / 2)) / (3.0 * v), 0.5)
+    scans = int(np.clip(round(interval * probe.scan_rate_hz), 5, 40))
+    return {
+        "submap": {
+            "scans_per_submap": scans,
+            "interval_s": round(interval, 3),
+            "voxel_m": 0.055 * k,
+            "min_range_m": 0.5 * k,
+            "max_range_m": round(max_range, 3),
+        },
+        "axis": {"min_elongation": 1.1},
+        "contour": {"inlier_distance_m": 0.18 * k},
+        "boundary": {
+            "profile_bin_m": 0.01 * k,
+            "dog_sigma_small_m": 0.025 * k,
+            "dog_sigma_large_m": 0.10 * k,
+            "min_strength_m": 0.002 * k,
+        },
+        "descriptor": {"half_length_m": half, "axial_interpolation": True},
+        "matching": {
+            "field_smoothing_sigma_m": 1.5 * 2.0 * math.pi * r / 256.0,
+            "duplicate_radius_m": float(np.clip(0.4 * k, 0.1, 0.4)),
+            "min_time_separation_s": round(max(10.0, 2.0 * max_range / v + interval), 1),
+        },
+        "graph": {"landmark_position_sigma_m": float(np.clip(0.05 * k, 0.01, 0.05))},
+    }
+
+
+def _toml(tables: dict[str, dict[str, Any]]) -> str:
+    lines = []
+    for section, values in tables.items():
+        lines.append(f"[{section}]")
+        lines.extend(f"{key} = {json.dumps(value)}" for key, value in values.items())
+    return "\n".join(lines) + "\n"
+
+
+def auto_config(probe: CorridorProbe, user_toml: Path | None) -> tuple[Config, dict[str, Any]]:
+    """The derived config with the user's TOML (if any) applied on top, and the report
+    section saying what was measured and chosen."""
+    derived = derive(probe)
+    merged = {s: dict(v) for s, v in derived.items()}
+    if user_toml is not None:
+        user = tomllib.loads(Path(user_toml).read_text(encoding="utf-8"))
+        for section, values in user.items():
+            if isinstance(values, dict):
+                merged.setdefault(section, {}).update(values)
+    cfg = Config(json.loads(_core.resolve_config_json("tunnel", _toml(merged))))
+    report = {
+        "measured": asdict(probe),
+        "derived": derived,
+        "corridor": "pipe" if probe.radius_m < 1.0 else "tunnel",
+        "user_overrides": None if user_toml is None else str(user_toml),
+    }
+    return cfg, report

@@ -1,0 +1,179 @@
+"""A jointly consistent loop set (beyond the paper, which adds every accepted pair).
+
+Every accepted loop says how far the odometry is off where it was observed: the *implied
+correction* ``c = T_db o_db - T_q o_q`` (the database boundary's world position minus the
+query boundary's, both placed with the odometry). Odometry drift varies smoothly along the
+path, so two true loops imply corrections that differ by at most the drift accumulated
+between them; a loop to the wrong one of several similar boundaries implies a correction off
+by a boundary spacing, a jump its neighbours do not share.
+
+Pairwise consistency (after PCM, Mangelson et al. 2018): loops ``i`` and ``j`` (other query
+submaps, anchors within ``consistency_window_m`` of path of each other, query and database
+sides together: ``sep``) conflict when ``|c_i - c_j| > consistency_tolerance_m +
+consistency_drift_fraction * sep``. The largest mutually consistent subset is approximated by
+removing, while any conflict remains, the loop with the most conflicts (ties: the one more
+likely to be chance, then fewer inliers) — a greedy minimum vertex cover of the sparse,
+local conflict graph; exact maximum cliques are exponential and the conflict graph here has
+only near-neighbour edges. Removed loops get the reason ``inconsistent``. A loop that then
+has fewer than ``min_corroborating_loops`` consistent neighbours is ``uncorroborated``
+(an isolated loop that nothing confirms: on the simulated aliased hume pipe one wrong loop
+with K = 15 passed every per-query test and only its isolation gave it away).
+
+Loops tested here are consistent with the odometry by construction of the allowance: the
+tolerance term is the boundary-origin noise (detections move by ~10 cm between views,
+DESIGN.md), the drift term the odometry's relative error per metre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs._core import QueryResult
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "LoopEvidence",
+    "Selection",
+    "effective_db_origin",
+    "select_consistent",
+    "select_loops",
+]
+
+
+@dataclass(frozen=True)
+class LoopEvidence:
+    """One accepted loop as the selection sees it: the implied correction (metres, odometry
+    world frame), the path position (metres along the odometry) of its query and database
+    anchors, the query submap stamp (views of one query submap are not independent), and its
+    strength (inliers, family-wise chance)."""
+
+    correction: FloatArray
+    query_path_m: float
+    db_path_m: float
+    query_stamp: float
+    inliers: int
+    chance: float
+
+
+@dataclass(frozen=True)
+class Selection:
+    """``kept[k]``: loop ``k`` stays; ``reasons[k]``: ``""``, ``"inconsistent"`` or
+    ``"uncorroborated"``; ``conflicts``: the conflicting pairs found (indices)."""
+
+    kept: list[bool]
+    reasons: list[str]
+    conflicts: list[tuple[int, int]]
+
+
+def _relations(
+    loops: list[LoopEvidence], tolerance_m: float, drift_fraction: float, window_m: float
+) -> tuple[list[set[int]], list[set[int]]]:
+    """Per loop: the loops it conflicts with, and those that corroborate it."""
+    n = len(loops)
+    conflicts: list[set[int]] = [set() for _ in range(n)]
+    support: list[set[int]] = [set() for _ in range(n)]
+    for i in range(n):
+        for j in range(i + 1, n):
+            a, b = loops[i], loops[j]
+            if a.query_stamp == b.query_stamp:
+                continue
+            sep = abs(a.query_path_m - b.query_path_m) + abs(a.db_path_m - b.db_path_m)
+            if sep > window_m:
+                continue
+            allowance = tolerance_m + drift_fraction * sep
+            if float(np.linalg.norm(a.correction - b.correction)) <= allowance:
+                support[i].add(j)
+                support[j].add(i)
+            else:
+                conflicts[i].add(j)
+                conflicts[j].add(i)
+    return conflicts, support
+
+
+def select_consistent(
+    loops: list[LoopEvidence],
+    *,
+    tolerance_m: float,
+    drift_fraction: float,
+    window_m: float,
+    min_corroborating: int,
+) -> Selection:
+    """The consistent subset of ``loops`` (module docs)."""
+    n = len(loops)
+    conflicts, support = _relations(loops, tolerance_m, drift_fraction, window_m)
+    pairs = [(i, j) for i in range(n) for j in conflicts[i] if i < j]
+    alive = set(range(n))
+    reasons = [""] * n
+    while True:
+        worst = max(
+            (k for k in alive if conflicts[k] & alive),
+            key=lambda k: (len(conflicts[k] & alive), loops[k].chance, -loops[k].inliers),
+            default=None,
+        )
+        if worst is None:
+            break
+        alive.discard(worst)
+        reasons[worst] = "inconsistent"
+    for k in sorted(alive):
+        if len(support[k] & alive) < min_corroborating:
+            reasons[k] = "uncorroborated"
+    kept = [not r for r in reasons]
+    return Selection(kept=kept, reasons=reasons, conflicts=pairs)
+
+
+def effective_db_origin(result: QueryResult) -> FloatArray:
+    """The candidate's origin moved by the verified axial offset, so both origins name the
+    same physical plane (``PairResult.dz_m`` is along the axis in the query's heading)."""
+    sign = 1.0 if abs(result.heading_deg) < 90.0 else -1.0
+    return np.asarray(result.candidate_origin, dtype=np.float64) + (
+        result.dz_m * sign * np.asarray(result.candidate_axis, dtype=np.float64)
+    )
+
+
+def select_loops(
+    results: list[QueryResult],
+    anchors: dict[float, FloatArray],
+    scan_stamps: FloatArray,
+    scan_odom: FloatArray,
+    matching: Any,
+) -> tuple[list[bool], list[str]]:
+    """For every query result: whether it stays a loop, and why not (the matcher's own
+    rejection, or ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`)."""
+    steps = np.linalg.norm(np.diff(scan_odom[:, :3, 3], axis=0), axis=1)
+    path = np.concatenate([[0.0], np.cumsum(steps)])
+
+    def world(stamp: float, point: FloatArray) -> FloatArray:
+        pose = anchors[stamp]
+        return np.asarray(pose[:3, :3] @ point + pose[:3, 3], dtype=np.float64)
+
+    accepted = [k for k, r in enumerate(results) if r.accepted]
+    evidence = [
+        LoopEvidence(
+            correction=world(r.candidate_stamp, effective_db_origin(r))
+            - world(r.query_stamp, np.asarray(r.query_origin, dtype=np.float64)),
+            query_path_m=float(np.interp(r.query_stamp, scan_stamps, path)),
+            db_path_m=float(np.interp(r.candidate_stamp, scan_stamps, path)),
+            query_stamp=r.query_stamp,
+            inliers=r.inliers,
+            chance=r.chance,
+        )
+        for r in (results[k] for k in accepted)
+    ]
+    chosen = select_consistent(
+        evidence,
+        tolerance_m=float(matching.consistency_tolerance_m),
+        drift_fraction=float(matching.consistency_drift_fraction),
+        window_m=float(matching.consistency_window_m),
+        min_corroborating=int(matching.min_corroborating_loops),
+    )
+    keep = [False] * len(results)
+    reasons = [r.rejection or "" for r in results]
+    for k, ok, why in zip(accepted, chosen.kept, chosen.reasons, strict=True):
+        keep[k] = ok
+        reasons[k] = why
+    return keep, reasons
