@@ -96,13 +96,30 @@ class LandmarkDatabase:
     def _json(self, config: MatchingConfigLike) -> str:
         return self._config if config is None else matching_config_json(config)
 
-    def add(self, landmark: Landmark) -> int:
-        """Prepare and store ``landmark``; returns its index."""
-        return self._db.add(landmark)
+    def add(self, landmark: Landmark, boundary: int | None = None) -> int:
+        """Prepare and store ``landmark``; returns its index. ``boundary``: the id of the
+        physical boundary it views (views sharing an id are one candidate: never each
+        other's runner-up); None = a boundary of its own."""
+        if boundary is None:
+            return self._db.add(landmark)
+        return self._db.add_view(landmark, int(boundary))
 
-    def extend(self, landmarks: Iterable[Landmark]) -> list[int]:
-        """Prepare (in parallel) and store ``landmarks``; returns their indices."""
-        return self._db.extend(list(landmarks))
+    def extend(
+        self, landmarks: Iterable[Landmark], boundaries: Iterable[int] | None = None
+    ) -> list[int]:
+        """Prepare (in parallel) and store ``landmarks``; returns their indices.
+        ``boundaries``: one physical boundary id per landmark (see :meth:`add`)."""
+        items = list(landmarks)
+        if boundaries is None:
+            return self._db.extend(items)
+        ids = [int(b) for b in boundaries]
+        if len(ids) != len(items):
+            raise ValueError(f"boundaries: {len(ids)} ids for {len(items)} landmarks")
+        return self._db.extend_views(items, ids)
+
+    def boundaries(self) -> list[int]:
+        """The physical boundary id of every stored view."""
+        return self._db.boundaries()
 
     def query(self, query: Landmark, config: MatchingConfigLike = None) -> QueryResult:
         """The best eligible candidate for ``query`` (database config unless given)."""

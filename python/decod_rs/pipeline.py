@@ -34,6 +34,7 @@ from decod_rs.matching import LandmarkDatabase
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
 from decod_rs.selection import effective_db_origin, select_loops
+from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
 
 FloatArray = NDArray[np.float64]
@@ -125,46 +126,16 @@ def _split_stamp(stamps: FloatArray, poses: FloatArray) -> float | None:
     return float(stamps[far])
 
 
-class _Duplicates:
-    """Recognises views of one physical boundary from nearby submaps (paper §IV-A: the
-    database holds boundaries, not views). Positions use the odometry, which is accurate
-    over the few seconds between such submaps."""
-
-    def __init__(self, anchors: dict[float, FloatArray], cfg: Config) -> None:
-        self.anchors = anchors
-        self.radius = float(cfg.matching.duplicate_radius_m)
-        self.window = float(cfg.matching.min_time_separation_s)
-        self.kept: list[tuple[float, FloatArray]] = []
-
-    def world(self, lm: Landmark) -> FloatArray:
-        pose = self.anchors[lm.submap_stamp]
-        return np.asarray(pose[:3, :3] @ lm.origin + pose[:3, 3], dtype=np.float64)
-
-    def admit(self, lm: Landmark) -> bool:
-        """True (and remembered) unless ``lm`` repeats an admitted boundary."""
-        here = self.world(lm)
-        for stamp, there in self.kept:
-            near_in_time = abs(stamp - lm.submap_stamp) < self.window
-            if near_in_time and np.linalg.norm(here - there) < self.radius:
-                return False
-        self.kept.append((lm.submap_stamp, here))
-        return True
-
-
-def _observed(lm: Landmark) -> int:
-    return int(lm.mask.sum())
-
-
 def _match(
     landmarks: list[Landmark],
-    anchors: dict[float, FloatArray],
+    tracks: NDArray[np.int64],
     cfg: Config,
     mode: str,
     split: float | None,
 ) -> tuple[list[QueryResult], str, int]:
-    """Queries and their top-1 results, the mode used, and the database size."""
+    """Queries and their top-1 results, the mode used, and the database size. Every view
+    goes into the database under its track (physical boundary) id."""
     db = LandmarkDatabase(cfg)
-    duplicates = _Duplicates(anchors, cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
     if mode == "batch":
@@ -172,18 +143,14 @@ def _match(
             raise ValueError(
                 "--mode batch: the trajectory has no return leg to query with (use --mode online)"
             )
-        outbound = [lm for lm in landmarks if lm.submap_stamp <= split]
-        # Best-observed view of each boundary first, so it is the one kept.
-        db.extend(
-            lm for lm in sorted(outbound, key=lambda lm: -_observed(lm)) if duplicates.admit(lm)
-        )
+        outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
+        db.extend([landmarks[k] for k in outbound], [int(tracks[k]) for k in outbound])
         queries = [lm for lm in landmarks if lm.submap_stamp > split]
         return db.query_batch(queries), mode, len(db)
     results = []
-    for lm in sorted(landmarks, key=lambda lm: lm.submap_stamp):
-        results.append(db.query(lm))
-        if duplicates.admit(lm):
-            db.add(lm)
+    for k in sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp):
+        results.append(db.query(landmarks[k]))
+        db.add(landmarks[k], int(tracks[k]))
     return results, mode, len(db)
 
 
@@ -331,7 +298,13 @@ def run_log(
     t0 = time.perf_counter()
     split = _split_stamp(scan_stamps, scan_odom)
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
-    results, used_mode, db_size = _match(ex.landmarks, anchors, cfg, mode, split)
+    tracks = group_views(
+        ex.landmarks,
+        anchors,
+        float(cfg.matching.duplicate_radius_m),
+        float(cfg.matching.min_time_separation_s),
+    )
+    results, used_mode, db_size = _match(ex.landmarks, tracks, cfg, mode, split)
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, cfg.matching)
     timings["match"] = time.perf_counter() - t0
 

@@ -11,17 +11,22 @@ Pairwise consistency (after PCM, Mangelson et al. 2018): loops ``i`` and ``j`` (
 submaps, anchors within ``consistency_window_m`` of path of each other, query and database
 sides together: ``sep``) conflict when ``|c_i - c_j| > consistency_tolerance_m +
 consistency_drift_fraction * sep``. The largest mutually consistent subset is approximated by
-removing, while any conflict remains, the loop with the most conflicts (ties: the one more
-likely to be chance, then fewer inliers) — a greedy minimum vertex cover of the sparse,
-local conflict graph; exact maximum cliques are exponential and the conflict graph here has
+removing, while any conflict remains, the loop with the least evidence (``-log10`` of its
+chance) per conflict it resolves — a greedy minimum-weight vertex cover of the sparse, local
+conflict graph; exact maximum cliques are exponential and the conflict graph here has
 only near-neighbour edges. Removed loops get the reason ``inconsistent``. A loop that then
 has fewer than ``min_corroborating_loops`` consistent neighbours is ``uncorroborated``
 (an isolated loop that nothing confirms: on the simulated aliased hume pipe one wrong loop
 with K = 15 passed every per-query test and only its isolation gave it away).
 
-Loops tested here are consistent with the odometry by construction of the allowance: the
-tolerance term is the boundary-origin noise (detections move by ~10 cm between views,
-DESIGN.md), the drift term the odometry's relative error per metre.
+Consistency with the odometry: a loop's implied correction cannot exceed the drift the
+odometry can accumulate over the path between its two views, ``consistency_tolerance_m +
+consistency_drift_fraction * |path_q - path_db|``; beyond it the loop is ``inconsistent``.
+On the simulated aliased hume pipe (identical joints) two wrong loops that agreed with each
+other (both 12 m off, 40 m of path apart) passed every per-query test; this gate rejects
+them. The tolerance term is the boundary-origin noise (detections move by ~10 cm between
+views, DESIGN.md), the drift term the odometry's relative error per metre: set it above
+what the odometry can do (a frontend that stalls along the axis needs up to 1).
 """
 
 from __future__ import annotations
@@ -95,6 +100,13 @@ def _relations(
     return conflicts, support
 
 
+def _weight(loop: LoopEvidence) -> float:
+    """Evidence of one loop: -log10 of its chance (inliers when that underflows)."""
+    if loop.chance > 0.0:
+        return max(-float(np.log10(loop.chance)), 1e-3)
+    return 300.0 + loop.inliers
+
+
 def select_consistent(
     loops: list[LoopEvidence],
     *,
@@ -107,16 +119,22 @@ def select_consistent(
     n = len(loops)
     conflicts, support = _relations(loops, tolerance_m, drift_fraction, window_m)
     pairs = [(i, j) for i in range(n) for j in conflicts[i] if i < j]
-    alive = set(range(n))
     reasons = [""] * n
+    for k, loop in enumerate(loops):
+        path = abs(loop.query_path_m - loop.db_path_m)
+        if float(np.linalg.norm(loop.correction)) > tolerance_m + drift_fraction * path:
+            reasons[k] = "inconsistent"  # more drift than the odometry can have travelled
+    alive = {k for k in range(n) if not reasons[k]}
     while True:
-        worst = max(
-            (k for k in alive if conflicts[k] & alive),
-            key=lambda k: (len(conflicts[k] & alive), loops[k].chance, -loops[k].inliers),
-            default=None,
-        )
-        if worst is None:
+        # Greedy minimum-weight vertex cover: drop the loop whose evidence is smallest for
+        # the conflicts it resolves (weight -log10 chance, K when the chance underflows).
+        conflicted = [k for k in alive if conflicts[k] & alive]
+        if not conflicted:
             break
+        worst = min(
+            conflicted,
+            key=lambda k: (_weight(loops[k]) / len(conflicts[k] & alive), loops[k].query_stamp),
+        )
         alive.discard(worst)
         reasons[worst] = "inconsistent"
     for k in sorted(alive):

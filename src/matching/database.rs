@@ -102,6 +102,9 @@ struct SavedDatabase {
     version: u32,
     config: Option<MatchingConfig>,
     landmarks: Vec<Landmark>,
+    /// Physical boundary ids (absent in files written before boundary views: one each).
+    #[serde(default)]
+    boundaries: Option<Vec<u64>>,
 }
 
 /// A set of prepared landmarks that queries run against.
@@ -110,6 +113,9 @@ pub struct LandmarkDatabase {
     config: MatchingConfig,
     shape: PatchShape,
     entries: Vec<PreparedLandmark>,
+    /// Physical boundary of each entry: views sharing an id are one candidate, never each
+    /// other's runner-up, and count once among the candidates compared.
+    boundaries: Vec<u64>,
 }
 
 /// Whether the prepared data of `a` is valid for `b` (same normalisation, keypoints, patches).
@@ -142,6 +148,7 @@ impl LandmarkDatabase {
             config: config.clone(),
             shape: PatchShape::new(config),
             entries: Vec::new(),
+            boundaries: Vec::new(),
         }
     }
 
@@ -168,16 +175,52 @@ impl LandmarkDatabase {
     /// Validates, prepares and stores a landmark; returns its index. All landmarks of a
     /// database share one grid.
     pub fn add(&mut self, landmark: Landmark) -> Result<usize> {
+        let id = self.fresh_id();
+        self.add_view(landmark, id)
+    }
+
+    /// An id no entry uses yet (one past the largest).
+    fn fresh_id(&self) -> u64 {
+        self.boundaries.iter().max().map_or(0, |m| m + 1)
+    }
+
+    /// [`Self::add`] for one view of the physical boundary `boundary` (other views of it may
+    /// already be stored or follow).
+    pub fn add_view(&mut self, landmark: Landmark, boundary: u64) -> Result<usize> {
         if let Some(first) = self.entries.first() {
             check_grids(&first.landmark, &landmark)?;
         }
         let prepared = PreparedLandmark::new(Arc::new(landmark), &self.config, &self.shape)?;
         self.entries.push(prepared);
+        self.boundaries.push(boundary);
         Ok(self.entries.len() - 1)
+    }
+
+    /// The physical boundary id of every entry.
+    pub fn boundaries(&self) -> &[u64] {
+        &self.boundaries
     }
 
     /// Adds many landmarks, preparing them in parallel; returns their indices.
     pub fn extend(&mut self, landmarks: Vec<Landmark>) -> Result<Vec<usize>> {
+        let first = self.fresh_id();
+        let ids = (first..first + landmarks.len() as u64).collect();
+        self.extend_views(landmarks, ids)
+    }
+
+    /// [`Self::extend`] with the physical boundary id of each landmark (see
+    /// [`Self::add_view`]); `boundaries` must be as long as `landmarks`.
+    pub fn extend_views(
+        &mut self,
+        landmarks: Vec<Landmark>,
+        boundaries: Vec<u64>,
+    ) -> Result<Vec<usize>> {
+        if boundaries.len() != landmarks.len() {
+            return Err(DecodError::invalid(
+                "boundaries",
+                format!("{} ids for {} landmarks", boundaries.len(), landmarks.len()),
+            ));
+        }
         if let (Some(first), Some(l)) = (self.entries.first(), landmarks.first()) {
             check_grids(&first.landmark, l)?;
         }
@@ -190,6 +233,7 @@ impl LandmarkDatabase {
             .collect::<Result<Vec<_>>>()?;
         let start = self.entries.len();
         self.entries.extend(prepared);
+        self.boundaries.extend(boundaries);
         Ok((start..self.entries.len()).collect())
     }
 
@@ -265,16 +309,20 @@ impl LandmarkDatabase {
         } else {
             entries.iter().enumerate().filter_map(work).collect()
         };
-        Ok(decide(&q, entries, &pairs, cfg))
+        Ok(decide(&q, entries, &self.boundaries, &pairs, cfg))
     }
 }
 
-/// The uniqueness test: a score ratio over the runner-up, and an inlier margin beyond the
-/// counting noise of both (see `MatchingConfig::uniqueness_sigma`).
-fn is_unique(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> bool {
+/// The inlier margin beyond the counting noise of best and runner-up
+/// (`MatchingConfig::uniqueness_sigma`).
+fn count_margin(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> bool {
     let (k_best, k_second) = (pair.inliers as f64, result.runner_up_inliers as f64);
-    pair.score >= cfg.uniqueness_ratio * result.runner_up_score
-        && k_best - k_second >= cfg.uniqueness_sigma * (k_best + k_second).sqrt()
+    k_best - k_second >= cfg.uniqueness_sigma * (k_best + k_second).sqrt()
+}
+
+/// The paper-mode uniqueness test: a score ratio over the runner-up, and the count margin.
+fn is_unique(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> bool {
+    pair.score >= cfg.uniqueness_ratio * result.runner_up_score && count_margin(pair, result, cfg)
 }
 
 /// Family-wise chance of `pair` against `n` candidates (`null_model` module docs).
@@ -327,6 +375,7 @@ fn judge(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> Optio
 fn decide(
     q: &PreparedLandmark,
     entries: &[PreparedLandmark],
+    boundaries: &[u64],
     pairs: &[(usize, PairResult)],
     cfg: &MatchingConfig,
 ) -> QueryResult {
@@ -344,8 +393,9 @@ fn decide(
     // Runner-up: the best other candidate not excluded as a view of the same joint.
     let best_stamp = best.map(|b| entries[b.0].landmark.submap_stamp);
     let mut second: Option<&(usize, PairResult)> = None;
+    let boundary = |i: usize| boundaries.get(i).copied().unwrap_or(u64::MAX - i as u64);
     for item in pairs {
-        let same = best.is_some_and(|b| b.0 == item.0);
+        let same = best.is_some_and(|b| boundary(b.0) == boundary(item.0));
         let excluded = best_stamp.is_some_and(|t| {
             (entries[item.0].landmark.submap_stamp - t).abs() < cfg.runner_up_exclusion_s
         });
@@ -384,7 +434,10 @@ fn decide(
     result.candidate_axis_in_submap = c.axis_in_submap;
     result.pair = Some(pair.clone());
     if cfg.verification {
-        let n = pairs.len();
+        let mut distinct: Vec<u64> = pairs.iter().map(|p| boundary(p.0)).collect();
+        distinct.sort_unstable();
+        distinct.dedup();
+        let n = distinct.len();
         result.chance = chance_of(q, &entries[*index], pair, n, cfg);
         if let Some((k, p)) = second {
             result.runner_up_chance = chance_of(q, &entries[*k], p, n, cfg);
@@ -403,6 +456,7 @@ impl LandmarkDatabase {
             version: FORMAT_VERSION,
             config: Some(self.config.clone()),
             landmarks: self.entries.iter().map(|e| (*e.landmark).clone()).collect(),
+            boundaries: Some(self.boundaries.clone()),
         };
         let file = std::fs::File::create(path).map_err(|source| DecodError::Io {
             path: path.to_path_buf(),
@@ -450,7 +504,10 @@ impl LandmarkDatabase {
             (None, None) => return Err(db_err("no config saved and none given".into())),
         };
         let mut db = Self::new(&config);
-        db.extend(saved.landmarks)
+        let ids = saved
+            .boundaries
+            .unwrap_or_else(|| (0..saved.landmarks.len() as u64).collect());
+        db.extend_views(saved.landmarks, ids)
             .map_err(|e| db_err(format!("invalid landmark: {e}")))?;
         Ok(db)
     }

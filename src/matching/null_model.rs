@@ -31,6 +31,15 @@
 //! since views of one boundary are merged before they reach the database — is itself
 //! beyond chance at `uniqueness_alpha`: two boundaries that both match far better than chance
 //! are aliased, and a false loop closure is worse than none.
+//!
+//! Chance agreement is not the only way to be wrong: views of identical joints taken from the
+//! same distance share sensor-relative artefacts. On the simulated aliased hume pipe
+//! (identical joints, seed 2, auto configuration) two wrong loops (K 14 and 8 against
+//! runner-ups of 4, 12 m off) passed both tests. The paper-mode count margin
+//! (`uniqueness_sigma`) would reject them, but it is not invariant to the keypoint count: with
+//! 16 keypoints it cut recall on the synthetic pipe from 0.66 to 0.06. They are left to the
+//! loop selection (`decod_rs.selection`): a 12 m correction after 40 m of travel is not
+//! consistent with the odometry.
 
 use super::keypoints::Keypoint;
 use super::{Heading, heading::flip_cell};

@@ -483,3 +483,34 @@ fn null_model_keeps_true_loops_for_any_keypoint_count() {
         assert!(r >= 0.6, "recall {r} with {cap} keypoints");
     }
 }
+
+#[test]
+fn views_of_one_boundary_are_one_candidate() {
+    let j = joint(1, 8);
+    let other = joint(1, 9);
+    let mut db = LandmarkDatabase::new(&cfg());
+    // Two views of joint 8 (boundary 0) and one of joint 9 (boundary 1).
+    db.add_view(j.observe(&Observation::default(), 1), 0)
+        .unwrap();
+    db.add_view(j.observe(&later(8.0), 2), 0).unwrap();
+    db.add_view(other.observe(&later(16.0), 4), 1).unwrap();
+    let r = db.query(&j.observe(&later(500.0), 3), &cfg()).unwrap();
+    assert!(r.accepted, "{r:?}");
+    assert_eq!(r.runner_up_index, Some(2));
+    // The same views as separate boundaries: the second view is a strong runner-up.
+    let mut separate = LandmarkDatabase::new(&cfg());
+    separate
+        .extend(vec![
+            j.observe(&Observation::default(), 1),
+            j.observe(&later(8.0), 2),
+        ])
+        .unwrap();
+    let r = separate
+        .query(&j.observe(&later(500.0), 3), &cfg())
+        .unwrap();
+    assert_eq!(r.rejection, Some(Rejection::NotUnique));
+    assert!(matches!(
+        db.extend_views(vec![j.observe(&later(30.0), 5)], vec![]),
+        Err(DecodError::InvalidInput { .. })
+    ));
+}

@@ -273,6 +273,35 @@ impl PyLandmarkDatabase {
         let db = &mut self.inner;
         detached(py, move || db.add(l))
     }
+    /// Stores one view of physical boundary `boundary`; returns its index.
+    fn add_view(
+        &mut self,
+        py: Python<'_>,
+        landmark: PyRef<'_, PyLandmark>,
+        boundary: u64,
+    ) -> PyResult<usize> {
+        let l = (*landmark.inner).clone();
+        let db = &mut self.inner;
+        detached(py, move || db.add_view(l, boundary))
+    }
+    /// Prepares (in parallel) and stores views with their physical boundary ids.
+    fn extend_views(
+        &mut self,
+        py: Python<'_>,
+        landmarks: Vec<PyRef<'_, PyLandmark>>,
+        boundaries: Vec<u64>,
+    ) -> PyResult<Vec<usize>> {
+        let ls: Vec<Landmark> = landmarks_of(&landmarks)
+            .iter()
+            .map(|l| (**l).clone())
+            .collect();
+        let db = &mut self.inner;
+        detached(py, move || db.extend_views(ls, boundaries))
+    }
+    /// The physical boundary id of every entry.
+    fn boundaries(&self) -> Vec<u64> {
+        self.inner.boundaries().to_vec()
+    }
     /// Prepares (in parallel) and stores landmarks; returns their indices.
     fn extend(
         &mut self,

@@ -1,0 +1,76 @@
+"""Boundary tracks: the views of one physical boundary within one pass (beyond the paper).
+
+A joint or ring is detected from several consecutive submaps of the same pass. Over the few
+seconds between them the odometry is accurate to centimetres, so two views whose origins
+lie within ``matching.duplicate_radius_m`` of each other in the odometry frame, from submaps
+less than ``matching.min_time_separation_s`` apart (the same pass: loop partners are at
+least that far apart), view the same boundary. Views are linked pairwise and the connected
+components are the tracks (union-find). The radius stays well below the boundary spacing
+(>= 1 m between pipe joints, >= 1.2 m between tunnel rings), so distinct boundaries never
+chain into one track.
+
+The matcher uses the tracks as the database's physical boundary ids: every view is kept (a
+query is compared with the view taken from the most similar distance), but the views of one
+boundary are one candidate, never each other's runner-up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs._core import Landmark
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["group_views", "world_origins"]
+
+
+def world_origins(landmarks: Sequence[Landmark], anchors: dict[float, FloatArray]) -> FloatArray:
+    """``(N, 3)`` landmark origins in the odometry (world) frame of their anchors."""
+    out = np.empty((len(landmarks), 3))
+    for k, lm in enumerate(landmarks):
+        pose = anchors[lm.submap_stamp]
+        out[k] = pose[:3, :3] @ lm.origin + pose[:3, 3]
+    return out
+
+
+def _find(parent: list[int], i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+def group_views(
+    landmarks: Sequence[Landmark],
+    anchors: dict[float, FloatArray],
+    radius_m: float,
+    window_s: float,
+) -> NDArray[np.int64]:
+    """A track id per landmark (module docs); ids are 0.. in order of first view."""
+    n = len(landmarks)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    where = world_origins(landmarks, anchors)
+    stamps = np.array([lm.submap_stamp for lm in landmarks])
+    parent = list(range(n))
+    order = np.argsort(stamps, kind="stable")
+    for a, i in enumerate(order):
+        for j in order[a + 1 :]:
+            if stamps[j] - stamps[i] >= window_s:
+                break
+            if stamps[j] == stamps[i]:
+                continue  # one submap's boundaries are distinct by construction (NMS)
+            if np.linalg.norm(where[i] - where[j]) < radius_m:
+                ri, rj = _find(parent, int(i)), _find(parent, int(j))
+                if ri != rj:
+                    parent[max(ri, rj)] = min(ri, rj)
+    roots = [_find(parent, k) for k in range(n)]
+    first: dict[int, int] = {}
+    ids = np.empty(n, dtype=np.int64)
+    for k in order:
+        ids[k] = first.setdefault(roots[k], len(first))
+    return ids
