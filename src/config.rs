@@ -240,8 +240,9 @@ pub struct MatchingConfig {
     /// (`acceptance = "null_model"`). Absent from a stored config: 1e-3.
     #[serde(default = "default_false_alarm_rate")]
     pub false_alarm_rate: f64,
-    /// The runner-up is "beyond chance" (the query is aliased, `not_unique`) when its own
-    /// family-wise chance is at most this (`acceptance = "null_model"`). Absent: 0.05.
+    /// `acceptance = "null_model"`: the query is aliased (`not_unique`) when the runner-up's
+    /// own family-wise chance is at most this and the best's lead over it is not significant
+    /// at this level either (`matching::null_model`). Absent from a stored config: 0.01.
     #[serde(default = "default_uniqueness_alpha")]
     pub uniqueness_alpha: f64,
     /// Only loops whose anchors lie within this path length (query and database sides
@@ -259,7 +260,7 @@ fn default_false_alarm_rate() -> f64 {
 }
 
 fn default_uniqueness_alpha() -> f64 {
-    0.05
+    0.01
 }
 
 /// Pose graph (paper §III-C, Eq. 2–3). Used by the Python side.

@@ -359,7 +359,9 @@ fn judge(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> Optio
     if cfg.acceptance == "null_model" {
         if result.chance > cfg.false_alarm_rate {
             Some(Rejection::Chance)
-        } else if result.runner_up_chance <= cfg.uniqueness_alpha {
+        } else if result.runner_up_chance <= cfg.uniqueness_alpha
+            && null_model::as_likely(pair.inliers, result.runner_up_inliers) > cfg.uniqueness_alpha
+        {
             Some(Rejection::NotUnique)
         } else {
             None

@@ -27,10 +27,15 @@
 //! **Query level.** A query compares its boundary with `n` distinct database boundaries
 //! under two headings, so the family-wise chance of a false Top-1 is at most
 //! `1 - (1 - p)^(2n)`. The best candidate is accepted iff this is at most
-//! `false_alarm_rate`; it is ambiguous (`not_unique`) when the runner-up — another boundary,
-//! since views of one boundary are merged before they reach the database — is itself
-//! beyond chance at `uniqueness_alpha`: two boundaries that both match far better than chance
-//! are aliased, and a false loop closure is worse than none.
+//! `false_alarm_rate`. It is ambiguous (`not_unique`) when the runner-up — another physical
+//! boundary: views of one boundary are one candidate — is itself beyond chance at
+//! `uniqueness_alpha` *and* the best does not lead it significantly: under "both are equally
+//! similar" each of the `K1 + K2` inliers is as likely to fall to either, and a lead as large
+//! as the observed one has chance `P(Bin(K1 + K2, 1/2) >= K1)` ([`as_likely`]). Structured
+//! corridors need the second clause: in the simulated shield tunnel the segment layout repeats
+//! every two rings, so the ring 3 m away matches far beyond chance (K = 13) while the right
+//! one leads with K = 38 (chance of such a lead 2e-4); identical joints give leads like
+//! 14 to 12, which are not significant.
 //!
 //! Chance agreement is not the only way to be wrong: views of identical joints taken from the
 //! same distance share sensor-relative artefacts. On the simulated aliased hume pipe
@@ -141,6 +146,13 @@ pub fn pair_p_value(
     sum.max(largest).min(1.0)
 }
 
+/// The chance that the best candidate leads the runner-up by this much although both are
+/// equally similar to the query: `P(Bin(K1 + K2, 1/2) >= K1)` (each inlier as likely to fall
+/// to either).
+pub fn as_likely(k_best: usize, k_runner_up: usize) -> f64 {
+    binomial_tail(k_best + k_runner_up, 0.5, k_best)
+}
+
 /// Family-wise chance of a false Top-1 over `candidates` boundaries and both headings.
 pub fn family_wise(p_pair: f64, candidates: usize) -> f64 {
     let tests = 2.0 * candidates.max(1) as f64;
@@ -190,6 +202,13 @@ mod tests {
         // More inliers are always less likely by chance.
         let p9 = pair_p_value(&spread, &spread, Heading::Forward, grid, 30, 9, &cfg);
         assert!(p9 < p_spread);
+    }
+
+    #[test]
+    fn a_lead_is_significant_only_when_large() {
+        assert!(as_likely(38, 13) < 1e-3);
+        assert!(as_likely(14, 12) > 0.3);
+        assert!((as_likely(1, 1) - 0.75).abs() < 1e-12);
     }
 
     #[test]
