@@ -291,6 +291,16 @@ pub struct GraphConfig {
     pub granularity: String,
     /// Levenberg–Marquardt iteration cap.
     pub max_iterations: usize,
+    /// Sequential boundary factors: two views of one tracked boundary within a pass tie
+    /// their anchors along the axis (`decod_rs.sequential`; not in the paper). False: the
+    /// paper's loops-only graph (`decod run --no-sequential`). Absent from a stored config:
+    /// true.
+    #[serde(default = "yes")]
+    pub sequential: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// Everything, one section per pipeline stage.
@@ -425,6 +435,7 @@ impl DecodConfig {
                 odom_rotation_sigma_per_m: 0.002,
                 granularity: "submap".into(),
                 max_iterations: 100,
+                sequential: true,
             },
         }
     }

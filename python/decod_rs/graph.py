@@ -72,7 +72,10 @@ class LoopConstraint:
 
     ``query_origin``/``db_origin``: (3,) contour centres at the boundary, metres;
     ``query_axis``/``db_axis``: (3,) unit corridor axes (their signs need not agree);
-    ``inliers``/``score``: the verification result (kept for reports and exports).
+    ``inliers``/``score``: the verification result (kept for reports and exports);
+    ``kind``: ``"loop"`` (between passes) or ``"sequential"`` (two views of one boundary
+    within a pass, :mod:`decod_rs.sequential`); ``sigma_m``: the position sigma of this
+    factor, metres (None: ``graph.landmark_position_sigma_m``).
     """
 
     query_index: int
@@ -83,6 +86,8 @@ class LoopConstraint:
     db_axis: FloatArray
     inliers: int = 0
     score: float = 0.0
+    kind: str = "loop"
+    sigma_m: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("query_origin", "query_axis", "db_origin", "db_axis"):
@@ -97,6 +102,17 @@ class LoopConstraint:
             object.__setattr__(self, name, v)
         if self.query_index == self.db_index:
             raise ValueError(f"LoopConstraint: query and db are both pose {self.query_index}")
+        if self.sigma_m is not None and not (np.isfinite(self.sigma_m) and self.sigma_m > 0):
+            raise ValueError(f"LoopConstraint.sigma_m: expected > 0 metres, got {self.sigma_m}")
+
+    def sigmas(self, cfg: Config) -> FloatArray:
+        """This factor's noise sigmas (:func:`loop_noise_sigmas` with ``sigma_m``)."""
+        out = loop_noise_sigmas(cfg).copy()
+        if self.sigma_m is not None:
+            # five_dof: [pos x3, axis]; pose3: [rot x3, pos x3].
+            position = slice(3, 6) if cfg.loop_factor == "pose3" else slice(0, 3)
+            out[position] = self.sigma_m
+        return out
 
 
 @dataclass
@@ -205,8 +221,8 @@ def _add_loops(
     index: dict[int, int] | None = None,
 ) -> None:
     """One robust loop factor per loop, on keys ``index[pose index]`` (identity if None)."""
-    noise = _robust(loop_noise_sigmas(cfg), cfg.huber_k)
     for lc in loops:
+        noise = _robust(lc.sigmas(cfg), cfg.huber_k)
         qi, di = lc.query_index, lc.db_index
         ki, kj = (qi, di) if index is None else (index[qi], index[di])
         if cfg.loop_factor == "pose3":
@@ -368,8 +384,8 @@ def optimize(
     first_loop = graph.size() - len(loops)
     residuals = np.zeros((len(loops), 4))
     weights = np.ones(len(loops))
-    sigmas = loop_noise_sigmas(cfg)
     for n, lc in enumerate(loops):
+        sigmas = lc.sigmas(cfg)
         residuals[n], _, _ = landmark_residual(
             out[lc.query_index],
             out[lc.db_index],
@@ -481,6 +497,8 @@ def _remap_loops(
                 db_axis=geo[1][1],
                 inliers=lc.inliers,
                 score=lc.score,
+                kind=lc.kind,
+                sigma_m=lc.sigma_m,
             )
         )
     return out

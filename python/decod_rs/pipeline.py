@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import platform
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,13 +28,15 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
-from decod_rs.graph import LoopConstraint, correct_trajectory
+from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.io import find_imu_topic
+from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
 from decod_rs.selection import effective_db_origin, select_loops
+from decod_rs.sequential import SequentialFactors, sequential_constraints
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
 
@@ -232,6 +235,118 @@ def _chainage(
     return out
 
 
+@dataclass
+class _Matched:
+    """Stages 2-3: the tracks, every query's Top-1 and which stay loops (and why not)."""
+
+    split: float | None
+    tracks: NDArray[np.int64]
+    results: list[QueryResult]
+    mode: str
+    database: int
+    keep: list[bool]
+    reasons: list[str]
+
+
+def _configure(
+    log: Path,
+    preset: str,
+    config_path: str | Path | None,
+    topics: tuple[str | None, str | None, Path | None, str | None],
+    sequential: bool | None,
+) -> tuple[Config, dict[str, Any] | None]:
+    """The config: measured and derived (``auto``) or a preset, plus the user's TOML."""
+    auto: dict[str, Any] | None = None
+    if preset == "auto":
+        probe = probe_corridor(log, *topics)
+        cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
+    else:
+        cfg = load_config(config_path, preset)
+    if sequential is not None:
+        values = cfg.to_dict()
+        values["graph"]["sequential"] = bool(sequential)
+        cfg = Config(values)
+    return cfg, auto
+
+
+def _match_and_select(
+    ex: _Extracted, cfg: Config, mode: str, scan_stamps: FloatArray, scan_odom: FloatArray
+) -> _Matched:
+    split = _split_stamp(scan_stamps, scan_odom)
+    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
+    m = cfg.matching
+    tracks = group_views(
+        ex.landmarks, anchors, float(m.duplicate_radius_m), float(m.min_time_separation_s)
+    )
+    results, used_mode, db_size = _match(ex.landmarks, tracks, cfg, mode, split)
+    keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)
+    return _Matched(split, tracks, results, used_mode, db_size, keep, reasons)
+
+
+def _path_at(scan_stamps: FloatArray, scan_odom: FloatArray) -> Callable[[float], float]:
+    steps = np.linalg.norm(np.diff(scan_odom[:, :3, 3], axis=0), axis=1)
+    path = np.concatenate([[0.0], np.cumsum(steps)])
+    return lambda stamp: float(np.interp(stamp, scan_stamps, path))
+
+
+def _factors(
+    ex: _Extracted,
+    matched: _Matched,
+    cfg: Config,
+    scans: tuple[FloatArray, FloatArray],
+) -> tuple[list[LoopConstraint], SequentialFactors | None]:
+    """Loop factors of the kept loops, then the sequential factors of the tracks."""
+    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    constraints = _constraints(matched.results, matched.keep, anchor_stamps)
+    if not cfg.graph.sequential:
+        return constraints, None
+    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
+    seq = sequential_constraints(
+        ex.landmarks, matched.tracks, anchors, anchor_stamps, _path_at(*scans), cfg
+    )
+    return constraints + seq.constraints, seq
+
+
+def _write(
+    out: Path,
+    ex: _Extracted,
+    matched: _Matched,
+    scans: tuple[FloatArray, FloatArray],
+    correction: CorrectionResult,
+    constraints: list[LoopConstraint],
+    cfg: Config,
+) -> list[Joint]:
+    """The contract's files: trajectories, loops, landmarks, joints, the graph."""
+    scan_stamps, scan_odom = scans
+    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    write_tum(out / "odometry.tum", scan_stamps, scan_odom)
+    write_tum(out / "corrected.tum", scan_stamps, correction.poses)
+    write_loops_csv(out / "loops.csv", _loop_table(matched.results, matched.keep, matched.reasons))
+    lms = ex.landmarks
+    chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
+    kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
+    joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split)
+    write_joints_csv(out / "joints.csv", joints)
+    write_landmarks_csv(
+        out / "landmarks.csv",
+        LandmarkTable(
+            stamp=np.array([lm.submap_stamp for lm in lms], dtype=np.float64),
+            origin=np.array([lm.origin for lm in lms], dtype=np.float64).reshape(-1, 3),
+            axis=np.array([lm.axis for lm in lms], dtype=np.float64).reshape(-1, 3),
+            radius_m=np.array([lm.radius_m for lm in lms], dtype=np.float64),
+            chainage_m=chainage,
+            track_id=matched.tracks,
+            joint_id=joint_of,
+        ),
+    )
+    # The graph on the submap anchors, for users who optimise elsewhere (g2o and JSON).
+    if anchor_stamps.size:
+        anchor_odom = interpolate_poses(scan_stamps, scan_odom, anchor_stamps)
+        write_g2o(out / "graph.g2o", anchor_odom, constraints, cfg.graph)
+        write_graph_json(out / "graph.json", anchor_odom, constraints, cfg.graph)
+    return joints
+
+
 def run_log(
     log: str | Path,
     out_dir: str | Path,
@@ -245,141 +360,122 @@ def run_log(
     use_imu: bool = True,
     mode: str = "auto",
     loops: bool = True,
+    sequential: bool | None = None,
     plots: bool = True,
     progress: bool = True,
 ) -> RunSummary:
-    """Run DeCOD on ``log`` and write the contract's files into ``out_dir``.
+    """Run DeCOD on ``log`` and write the contract's files into ``out_dir`` (paper Alg. 1:
+    extract -> match -> select -> optimise -> write).
 
     ``preset="auto"`` measures the corridor from the first scans and derives the spatial
     parameters (:mod:`decod_rs.autoscale`); ``"pipe"`` / ``"tunnel"`` take the fixed presets.
     ``imu_topic=None`` takes the log's unique IMU topic if there is one (``use_imu=False``:
-    never; gravity is then the sensor's -z). ``loops=False`` disables loop closure (the
+    never; gravity is then the sensor's -z). ``loops=False`` disables every factor (the
     output trajectory is then the odometry); the matching still runs and is reported.
+    ``sequential`` overrides ``graph.sequential`` (False: the paper's loops-only graph).
     """
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
     if preset not in PRESET_CHOICES:
         raise ValueError(f"preset: {preset!r} is not one of {PRESET_CHOICES}")
-    log = Path(log)
-    out = Path(out_dir)
+    log, out = Path(log), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    timings: dict[str, float] = {}
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
+    tum = None if odom_tum is None else Path(odom_tum)
+    topics = (points_topic, odom_topic, tum, imu_topic)
+    timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    auto: dict[str, Any] | None = None
-    if preset == "auto":
-        probe = probe_corridor(
-            log, points_topic, odom_topic, None if odom_tum is None else Path(odom_tum), imu_topic
-        )
-        cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
-        timings["configure"] = time.perf_counter() - t0
-    else:
-        cfg = load_config(config_path, preset)
+    cfg, auto = _configure(log, preset, config_path, topics, sequential)
+    timings["configure"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    processor, ex = _extract(
-        log,
-        cfg,
-        points_topic,
-        odom_topic,
-        None if odom_tum is None else Path(odom_tum),
-        imu_topic,
-        progress,
-    )
+    processor, ex = _extract(log, cfg, *topics, progress)
     timings["extract"] = time.perf_counter() - t0
-    scan_stamps = np.asarray(processor.scan_stamps(), dtype=np.float64)
-    scan_odom = np.asarray(processor.scan_poses(), dtype=np.float64)
-    if scan_stamps.size == 0:
+    scans = (
+        np.asarray(processor.scan_stamps(), dtype=np.float64),
+        np.asarray(processor.scan_poses(), dtype=np.float64),
+    )
+    if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
-    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
 
     t0 = time.perf_counter()
-    split = _split_stamp(scan_stamps, scan_odom)
-    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
-    tracks = group_views(
-        ex.landmarks,
-        anchors,
-        float(cfg.matching.duplicate_radius_m),
-        float(cfg.matching.min_time_separation_s),
-    )
-    results, used_mode, db_size = _match(ex.landmarks, tracks, cfg, mode, split)
-    keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, cfg.matching)
+    matched = _match_and_select(ex, cfg, mode, *scans)
     timings["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    constraints = _constraints(results, keep, anchor_stamps) if loops else []
-    correction = correct_trajectory(scan_stamps, scan_odom, anchor_stamps, constraints, cfg.graph)
+    constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
+    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    correction = correct_trajectory(*scans, anchor_stamps, constraints, cfg.graph)
     timings["optimise"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    write_tum(out / "odometry.tum", scan_stamps, scan_odom)
-    write_tum(out / "corrected.tum", scan_stamps, correction.poses)
-    write_loops_csv(out / "loops.csv", _loop_table(results, keep, reasons))
-    lms = ex.landmarks
-    write_landmarks_csv(
-        out / "landmarks.csv",
-        LandmarkTable(
-            stamp=np.array([lm.submap_stamp for lm in lms], dtype=np.float64),
-            origin=np.array([lm.origin for lm in lms], dtype=np.float64).reshape(-1, 3),
-            axis=np.array([lm.axis for lm in lms], dtype=np.float64).reshape(-1, 3),
-            radius_m=np.array([lm.radius_m for lm in lms], dtype=np.float64),
-            chainage_m=_chainage(lms, anchor_stamps, scan_stamps, correction.poses),
-        ),
-    )
-    # The graph on the submap anchors, for users who optimise elsewhere (g2o and JSON).
-    if anchor_stamps.size:
-        anchor_odom = interpolate_poses(scan_stamps, scan_odom, anchor_stamps)
-        write_g2o(out / "graph.g2o", anchor_odom, constraints, cfg.graph)
-        write_graph_json(out / "graph.json", anchor_odom, constraints, cfg.graph)
+    joints = _write(out, ex, matched, scans, correction, constraints, cfg)
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
-        kept = [r for r, ok in zip(results, keep, strict=True) if ok]
-        _plots(out, scan_stamps, scan_odom, correction.poses, kept, lms)
+        kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
+        _plots(out, *scans, correction.poses, kept, ex.landmarks)
         timings["plots"] = time.perf_counter() - t0
 
-    accepted = sum(keep)
-    rejected: dict[str, int] = {}
-    for why, ok in zip(reasons, keep, strict=True):
-        if not ok:
-            rejected[why or "unknown"] = rejected.get(why or "unknown", 0) + 1
     summary = RunSummary(
         out_dir=out,
-        scans=int(scan_stamps.size),
+        scans=int(scans[0].size),
         submaps=len(ex.anchor_stamps),
-        landmarks=len(lms),
-        queries=len(results),
-        accepted=int(accepted),
-        mode=used_mode,
-        split_stamp=split,
-        log_duration_s=float(scan_stamps[-1] - scan_stamps[0]),
+        landmarks=len(ex.landmarks),
+        queries=len(matched.results),
+        accepted=int(sum(matched.keep)),
+        mode=matched.mode,
+        split_stamp=matched.split,
+        log_duration_s=float(scans[0][-1] - scans[0][0]),
         timings_s=timings,
         rejections=ex.rejections,
     )
-    report: dict[str, Any] = {
+    report = _report(summary, log, processor, cfg, matched, constraints, correction, seq, joints)
+    report.update(preset=preset, auto=auto, imu_topic=imu_topic, loops_enabled=loops)
+    (out / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
+    return summary
+
+
+def _report(
+    summary: RunSummary,
+    log: Path,
+    processor: _core.LogProcessor,
+    cfg: Config,
+    matched: _Matched,
+    constraints: list[LoopConstraint],
+    correction: CorrectionResult,
+    seq: SequentialFactors | None,
+    joints: list[Joint],
+) -> dict[str, Any]:
+    """``report.json``: counts, every rejection and its reason, timings, config, versions."""
+    rejected: dict[str, int] = {}
+    for why, ok in zip(matched.reasons, matched.keep, strict=True):
+        if not ok:
+            rejected[why or "unknown"] = rejected.get(why or "unknown", 0) + 1
+    loop_factors = sum(1 for c in constraints if c.kind == "loop")
+    return {
         "log": str(log),
         "points_topic": processor.points_topic,
-        "imu_topic": imu_topic,
-        "preset": preset,
-        "auto": auto,
-        "mode": used_mode,
-        "split_stamp": split,
-        "loops_enabled": loops,
+        "mode": summary.mode,
+        "split_stamp": summary.split_stamp,
         "counts": {
             "scans": summary.scans,
             "skipped_outside_odometry": len(processor.skipped_outside_odometry),
             "submaps": summary.submaps,
             "landmarks": summary.landmarks,
-            "database": db_size,
+            "tracks": int(np.unique(matched.tracks).size),
+            "joints": len(joints),
+            "database": matched.database,
             "queries": summary.queries,
             "accepted": summary.accepted,
-            "loop_factors": len(constraints),
+            "loop_factors": loop_factors,
+            "sequential_factors": len(constraints) - loop_factors,
         },
-        "extraction_rejections": ex.rejections,
-        "extraction_rejection_messages": ex.rejection_messages[:200],
+        "extraction_rejections": summary.rejections,
         "query_rejections": rejected,
+        "sequential": None if seq is None else seq.report(),
         "optimisation": {
             "nodes": int(correction.node_stamps.size),
             "iterations": correction.graph.iterations,
@@ -387,7 +483,7 @@ def run_log(
             "final_error": correction.graph.final_error,
             "loop_weights": [float(w) for w in correction.graph.loop_weights],
         },
-        "timings_s": timings,
+        "timings_s": summary.timings_s,
         "log_duration_s": summary.log_duration_s,
         "realtime_factor": summary.realtime_factor,
         "config": cfg.to_dict(),
@@ -397,8 +493,6 @@ def run_log(
             "numpy": np.__version__,
         },
     }
-    (out / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
-    return summary
 
 
 def _plots(

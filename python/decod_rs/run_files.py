@@ -32,9 +32,11 @@ LOOPS_COLUMNS = (
     "db_axis_x,db_axis_y,db_axis_z,inliers,score,accepted"
 ).split(",")
 
-LANDMARKS_COLUMNS = (
-    "stamp,origin_x,origin_y,origin_z,axis_x,axis_y,axis_z,radius_m,chainage_m".split(",")
-)
+LANDMARKS_COLUMNS = [
+    *"stamp,origin_x,origin_y,origin_z,axis_x,axis_y,axis_z,radius_m,chainage_m".split(","),
+    "track_id",
+    "joint_id",
+]
 
 #: A loop stamp matches a graph node if they differ by less than this (stamps are written
 #: with 9 decimals; anchors are scan stamps).
@@ -77,13 +79,17 @@ class LoopTable:
 @dataclass
 class LandmarkTable:
     """``landmarks.csv`` as arrays: M rows; ``stamp`` (M,) s; ``origin``/``axis`` (M, 3) in
-    the anchor body frame; ``radius_m``, ``chainage_m`` (M,) (NaN where absent)."""
+    the anchor body frame; ``radius_m``, ``chainage_m`` (M,) (NaN where absent);
+    ``track_id``/``joint_id`` (M,) the boundary track within a pass and the physical boundary
+    (``joints.csv``), -1 where absent."""
 
     stamp: FloatArray
     origin: FloatArray
     axis: FloatArray
     radius_m: FloatArray
     chainage_m: FloatArray
+    track_id: NDArray[np.int64] | None = None
+    joint_id: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return int(self.stamp.shape[0])
@@ -183,6 +189,12 @@ def read_landmarks_csv(path: str | Path) -> LandmarkTable:
             [_float(path, r + 2, name, row[name], optional) for r, row in enumerate(rows)]
         )
 
+    def ids(name: str) -> NDArray[np.int64] | None:
+        if name not in header:
+            return None
+        values = column(name, True)
+        return np.where(np.isfinite(values), values, -1).astype(np.int64)
+
     origin = np.column_stack([column(f"origin_{a}", False) for a in "xyz"]).reshape(n, 3)
     axis = np.column_stack([column(f"axis_{a}", True) for a in "xyz"]).reshape(n, 3)
     return LandmarkTable(
@@ -191,6 +203,8 @@ def read_landmarks_csv(path: str | Path) -> LandmarkTable:
         axis=axis,
         radius_m=column("radius_m", True),
         chainage_m=column("chainage_m", True),
+        track_id=ids("track_id"),
+        joint_id=ids("joint_id"),
     )
 
 
@@ -199,6 +213,9 @@ def write_landmarks_csv(path: str | Path, table: LandmarkTable) -> None:
     with Path(path).open("w", encoding="utf-8", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(LANDMARKS_COLUMNS)
+        none = np.full(len(table), -1, dtype=np.int64)
+        tracks = none if table.track_id is None else table.track_id
+        joints = none if table.joint_id is None else table.joint_id
         for r in range(len(table)):
             nums = [
                 table.stamp[r],
@@ -207,7 +224,8 @@ def write_landmarks_csv(path: str | Path, table: LandmarkTable) -> None:
                 table.radius_m[r],
                 table.chainage_m[r],
             ]
-            w.writerow(["" if not np.isfinite(v) else f"{v:.9f}" for v in nums])
+            cells = ["" if not np.isfinite(v) else f"{v:.9f}" for v in nums]
+            w.writerow([*cells, str(int(tracks[r])), str(int(joints[r]))])
 
 
 def loops_to_constraints(

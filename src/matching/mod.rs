@@ -95,6 +95,15 @@ pub struct PairResult {
     pub dp: f64,
     /// Why the pair is not a loop on its own (overlap, inliers); `None` if it passes.
     pub rejection: Option<Rejection>,
+    /// Chance that two unrelated surfaces with these keypoints verify this well
+    /// ([`null_model::pair_p_value`]); computed by [`compare`] only (a database query judges
+    /// its Top-1 in `QueryResult::chance`), 1 elsewhere.
+    #[serde(default = "one")]
+    pub chance: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// Per-landmark work done once: normalised field, keypoints, patch factor.
@@ -213,7 +222,19 @@ pub fn compare(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> 
     let q = PreparedLandmark::new(Arc::new(query.clone()), cfg, &shape)?;
     let c = PreparedLandmark::new(Arc::new(candidate.clone()), cfg, &shape)?;
     let side = QuerySide::new(&q, &shape);
-    Ok(compare_prepared(&q, &side, &c, cfg, &shape))
+    let mut pair = compare_prepared(&q, &side, &c, cfg, &shape);
+    if cfg.verification {
+        pair.chance = null_model::pair_p_value(
+            &q.keypoints,
+            &c.keypoints,
+            pair.heading,
+            q.grid(),
+            pair.matches,
+            pair.inliers,
+            cfg,
+        );
+    }
+    Ok(pair)
 }
 
 /// The pairwise part on prepared landmarks (grids already checked).
@@ -274,6 +295,7 @@ fn compare_heading(
         dz_m: 0.0,
         dp: 0.0,
         rejection: None,
+        chance: 1.0,
     };
     if overlap_fraction < cfg.min_overlap_fraction {
         result.rejection = Some(Rejection::InsufficientOverlap);

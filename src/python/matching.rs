@@ -84,6 +84,11 @@ impl PyPairResult {
     fn dp(&self) -> f64 {
         self.inner.dp
     }
+    /// Chance that unrelated surfaces verify this well (null model; 1 if not computed).
+    #[getter]
+    fn chance(&self) -> f64 {
+        self.inner.chance
+    }
     /// Why the pair is rejected on its own (`insufficient_overlap`, `too_few_inliers`), or None.
     #[getter]
     fn rejection(&self) -> Option<&'static str> {

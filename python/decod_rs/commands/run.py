@@ -43,6 +43,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "older ones; auto: batch if the run comes back, else online",
     )
     p.add_argument("--no-loops", action="store_true", help="report matches, add no factor")
+    p.add_argument(
+        "--no-sequential",
+        action="store_true",
+        help="no sequential boundary factors within a pass (graph.sequential = false): the "
+        "paper's loops-only graph",
+    )
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=run)
@@ -76,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
         use_imu=not args.no_imu,
         mode=args.mode,
         loops=not args.no_loops,
+        sequential=False if args.no_sequential else None,
         plots=not args.no_plots,
     )
     print_summary(summary)

@@ -1,0 +1,128 @@
+"""The joint registry (``joints.csv``): one row per physical boundary, what an inspection
+report cites.
+
+A physical boundary is a set of tracks (:mod:`decod_rs.tracks`: the views of one boundary
+within one pass) joined by the accepted loops between them (the outbound and the return
+track of one joint). Per boundary: its chainage (median over its views of the distance from
+the start along the corrected trajectory), the number of views, tracks and passes that saw
+it, and whether a loop confirmed it.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs._core import Landmark, QueryResult
+
+FloatArray = NDArray[np.float64]
+
+JOINTS_COLUMNS = (
+    "joint_id",
+    "chainage_m",
+    "views",
+    "tracks",
+    "passes",
+    "loop_confirmed",
+    "first_stamp",
+    "last_stamp",
+)
+
+__all__ = ["JOINTS_COLUMNS", "Joint", "joint_registry", "write_joints_csv"]
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One physical boundary of the registry (module docs)."""
+
+    joint_id: int
+    chainage_m: float
+    views: int
+    tracks: int
+    passes: int
+    loop_confirmed: bool
+    first_stamp: float
+    last_stamp: float
+
+
+def _key(stamp: float, origin: FloatArray) -> tuple[float, tuple[float, ...]]:
+    return stamp, tuple(np.round(np.asarray(origin, dtype=np.float64), 6))
+
+
+def _root(parent: dict[int, int], t: int) -> int:
+    while parent.setdefault(t, t) != t:
+        parent[t] = parent[parent[t]]
+        t = parent[t]
+    return t
+
+
+def joint_registry(
+    landmarks: Sequence[Landmark],
+    tracks: NDArray[np.int64],
+    loops: Sequence[QueryResult],
+    chainage_m: FloatArray,
+    split_stamp: float | None,
+) -> tuple[list[Joint], NDArray[np.int64]]:
+    """The registry and each landmark's joint id; ``loops``: the accepted loops only."""
+    index = {_key(lm.submap_stamp, lm.origin): k for k, lm in enumerate(landmarks)}
+    parent: dict[int, int] = {}
+    confirmed: set[int] = set()
+    for r in loops:
+        q = index.get(_key(r.query_stamp, r.query_origin))
+        d = index.get(_key(r.candidate_stamp, r.candidate_origin))
+        if q is None or d is None:
+            continue
+        a, b = _root(parent, int(tracks[q])), _root(parent, int(tracks[d]))
+        parent[max(a, b)] = min(a, b)
+        confirmed.update((int(tracks[q]), int(tracks[d])))
+    roots = np.array([_root(parent, int(t)) for t in tracks], dtype=np.int64)
+    stamps = np.array([lm.submap_stamp for lm in landmarks])
+    rows = []
+    for r in np.unique(roots):
+        idx = np.flatnonzero(roots == r)
+        members = set(tracks[idx].tolist())
+        seen = {0 if split_stamp is None or s <= split_stamp else 1 for s in stamps[idx]}
+        rows.append((float(np.median(chainage_m[idx])), int(r), idx, members, len(seen)))
+    rows.sort(key=lambda row: row[0])
+    joint_of = np.empty(len(landmarks), dtype=np.int64)
+    joints = []
+    for jid, (chain, _, idx, members, n_passes) in enumerate(rows):
+        joint_of[idx] = jid
+        joints.append(
+            Joint(
+                joint_id=jid,
+                chainage_m=chain,
+                views=int(idx.size),
+                tracks=len(members),
+                passes=n_passes,
+                loop_confirmed=bool(members & confirmed),
+                first_stamp=float(stamps[idx].min()),
+                last_stamp=float(stamps[idx].max()),
+            )
+        )
+    return joints, joint_of
+
+
+def write_joints_csv(path: str | Path, joints: Sequence[Joint]) -> None:
+    """``joints.csv`` with ``JOINTS_COLUMNS``."""
+    with Path(path).open("w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(JOINTS_COLUMNS)
+        for j in joints:
+            w.writerow(
+                [
+                    j.joint_id,
+                    f"{j.chainage_m:.4f}",
+                    j.views,
+                    j.tracks,
+                    j.passes,
+                    int(j.loop_confirmed),
+                    f"{j.first_stamp:.9f}",
+                    f"{j.last_stamp:.9f}",
+                ]
+            )

@@ -1,0 +1,148 @@
+"""Sequential boundary factors: a boundary tracked within one pass measures the axial motion
+between the anchors that see it (beyond the paper, which uses boundaries only for loops).
+
+Loops between the outbound and the return pass say the passes must agree; they cannot say
+which pass is wrong, so with uneven drift (outbound -5 %, return -15 %) the optimiser meets
+them halfway and the outbound pass gets worse. A boundary seen from two anchors of the same
+pass is where it is: the change of its position relative to each anchor comes from the
+LiDAR, not the odometry, and measures their displacement along the axis directly, scale
+error and stall included.
+
+For every track (:mod:`decod_rs.tracks`) its consecutive views from different anchors are
+compared with the matcher (:func:`decod_rs.matching.compare`); a pair becomes a 5-DoF factor
+(the loop factor of Eq. 3, between two anchors of one pass) only if
+
+- the descriptors confirm it: same heading, chance agreement below
+  ``matching.false_alarm_rate`` (one candidate) and an axial offset within the verification
+  window;
+- it agrees with the odometry: the implied correction is within
+  ``consistency_tolerance_m + consistency_drift_fraction * path`` (a wrong association with
+  a neighbouring joint implies a jump of a joint spacing over a few decimetres of path).
+
+Weight: the axial detection noise *measured* on the tracks. Within a track, view positions
+(odometry frame, along the axis) scatter by the detection noise plus the odometry's drift
+over the few seconds between views; a straight line in time per track absorbs the drift, and
+the pooled residual spread (``n - 2`` degrees of freedom per track) is the noise, floored at
+the profile bin and capped at the loop sigma. ``report.json`` records it.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs._core import Landmark
+from decod_rs.graph import LoopConstraint
+from decod_rs.matching import compare
+from decod_rs.tracks import world_origins
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["SequentialFactors", "detection_noise_m", "sequential_constraints"]
+
+
+@dataclass
+class SequentialFactors:
+    """The factors and what became of the candidate pairs."""
+
+    constraints: list[LoopConstraint]
+    sigma_m: float
+    pairs: int
+    rejected: dict[str, int]
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "factors": len(self.constraints),
+            "candidate_pairs": self.pairs,
+            "rejected": self.rejected,
+            "detection_sigma_m": self.sigma_m,
+        }
+
+
+def detection_noise_m(
+    stamps: FloatArray, axial: FloatArray, tracks: NDArray[np.int64], floor_m: float
+) -> float:
+    """Pooled residual spread of view positions about a line in time per track (module
+    docs); ``floor_m`` when no track has three views."""
+    sq, dof = 0.0, 0
+    for t in np.unique(tracks):
+        idx = np.flatnonzero(tracks == t)
+        if idx.size < 3:
+            continue
+        x = stamps[idx] - stamps[idx].mean()
+        design = np.column_stack([np.ones_like(x), x])
+        coef, *_ = np.linalg.lstsq(design, axial[idx], rcond=None)
+        sq += float(np.sum((axial[idx] - design @ coef) ** 2))
+        dof += idx.size - 2
+    return max(float(np.sqrt(sq / dof)) if dof else floor_m, floor_m)
+
+
+def _verified(later: Landmark, earlier: Landmark, matching: Any) -> tuple[bool, str, float]:
+    pair = compare(later, earlier, matching)
+    if pair.rejection is not None:
+        return False, pair.rejection, 0.0
+    if abs(pair.heading_deg) > 90.0:
+        return False, "heading", 0.0
+    if pair.chance > float(matching.false_alarm_rate):
+        return False, "chance", 0.0
+    return True, "", float(pair.dz_m)
+
+
+def sequential_constraints(
+    landmarks: Sequence[Landmark],
+    tracks: NDArray[np.int64],
+    anchors: dict[float, FloatArray],
+    anchor_stamps: FloatArray,
+    path_at: Any,
+    cfg: Any,
+) -> SequentialFactors:
+    """Factors between consecutive views of every track (module docs). ``path_at(stamp)``:
+    path length along the odometry at a stamp (metres)."""
+    m = cfg.matching
+    where = world_origins(landmarks, anchors)
+    stamps = np.array([lm.submap_stamp for lm in landmarks])
+    axes = np.array([lm.axis for lm in landmarks]).reshape(-1, 3)
+    axial = np.einsum("ij,ij->i", where, axes) if len(landmarks) else np.zeros(0)
+    # Axes of one corridor agree up to sign; orient by the first so positions compare.
+    if len(landmarks):
+        axial *= np.sign(axes @ axes[0])
+    loop_sigma = float(cfg.graph.landmark_position_sigma_m)
+    sigma = min(
+        detection_noise_m(stamps, axial, tracks, float(cfg.boundary.profile_bin_m)), loop_sigma
+    )
+    out = SequentialFactors(constraints=[], sigma_m=sigma, pairs=0, rejected={})
+    for t in np.unique(tracks):
+        views = sorted((int(k) for k in np.flatnonzero(tracks == t)), key=lambda k: stamps[k])
+        for a, b in itertools.pairwise(views):
+            if stamps[a] == stamps[b]:
+                continue
+            out.pairs += 1
+            ok, why, dz = _verified(landmarks[b], landmarks[a], m)
+            earlier = np.asarray(landmarks[a].origin) + dz * np.asarray(landmarks[a].axis)
+            if ok:
+                pose = anchors[stamps[a]]
+                shift = pose[:3, :3] @ earlier + pose[:3, 3] - where[b]
+                path = abs(path_at(stamps[b]) - path_at(stamps[a]))
+                allowance = m.consistency_tolerance_m + m.consistency_drift_fraction * path
+                ok, why = (True, "") if np.linalg.norm(shift) <= allowance else (False, "jump")
+            if not ok:
+                out.rejected[why] = out.rejected.get(why, 0) + 1
+                continue
+            out.constraints.append(
+                LoopConstraint(
+                    query_index=int(np.argmin(np.abs(anchor_stamps - stamps[b]))),
+                    db_index=int(np.argmin(np.abs(anchor_stamps - stamps[a]))),
+                    query_origin=np.asarray(landmarks[b].origin, dtype=np.float64),
+                    query_axis=np.asarray(landmarks[b].axis, dtype=np.float64),
+                    db_origin=earlier,
+                    db_axis=np.asarray(landmarks[a].axis, dtype=np.float64),
+                    kind="sequential",
+                    sigma_m=sigma,
+                )
+            )
+    return out
