@@ -1,0 +1,146 @@
+"""Loop selection, boundary tracks, sequential noise and the auto configuration, on inputs
+whose right answer is known by construction."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from decod_rs.autoscale import CorridorProbe, derive
+from decod_rs.matching import synthetic_landmark
+from decod_rs.selection import LoopEvidence, select_consistent
+from decod_rs.sequential import detection_noise_m
+from decod_rs.tracks import group_views
+
+SPACING_M = 2.4
+DRIFT = 0.05  # the return pass drifts 5 % per metre more than the outbound one
+
+
+def _loops(wrong: dict[int, float]) -> list[LoopEvidence]:
+    """A loop at every joint of a 30 m out-and-back; loop k's correction is the smooth drift
+    plus ``wrong[k]`` metres (a wrong joint)."""
+    out = []
+    for k in range(12):
+        x = 1.0 + k * SPACING_M
+        db_path, q_path = x, 2 * 30.0 - x
+        c = DRIFT * (q_path - db_path) + wrong.get(k, 0.0)
+        out.append(
+            LoopEvidence(
+                correction=np.array([c, 0.0, 0.0]),
+                query_path_m=q_path,
+                db_path_m=db_path,
+                query_stamp=float(k),
+                inliers=20,
+                chance=1e-12,
+            )
+        )
+    return out
+
+
+def _select(loops: list[LoopEvidence], drift: float = 0.15):
+    return select_consistent(
+        loops, tolerance_m=0.3, drift_fraction=drift, window_m=20.0, min_corroborating=1
+    )
+
+
+def test_a_loop_to_the_neighbouring_joint_is_inconsistent() -> None:
+    chosen = _select(_loops({5: SPACING_M}))
+    assert chosen.reasons[5] == "inconsistent"
+    assert all(chosen.kept[k] for k in range(12) if k != 5)
+
+
+def test_smooth_drift_keeps_every_true_loop() -> None:
+    chosen = _select(_loops({}))
+    assert all(chosen.kept), chosen.reasons
+
+
+def test_loops_that_agree_with_each_other_but_not_the_odometry_are_dropped() -> None:
+    # Two wrong loops, both one 12 m jump off (an aliased pipe), alone: they corroborate each
+    # other but imply far more drift than the odometry can have over their path.
+    loops = [
+        LoopEvidence(np.array([12.0, 0, 0]), 50.0 + d, 10.0 - d, float(d), 14, 1e-15)
+        for d in (0.0, 1.0)
+    ]
+    chosen = _select(loops)
+    assert chosen.reasons == ["inconsistent", "inconsistent"]
+    # The same corrections after 200 m of path are plausible drift (6 %).
+    far = [
+        LoopEvidence(np.array([12.0, 0, 0]), 210.0 + d, 10.0 - d, float(d), 14, 1e-15)
+        for d in (0.0, 1.0)
+    ]
+    assert all(_select(far).kept)
+
+
+def test_an_isolated_loop_is_uncorroborated() -> None:
+    loops = _loops({})[:1]
+    assert _select(loops).reasons == ["uncorroborated"]
+
+
+def test_detection_noise_is_measured_without_the_drift() -> None:
+    rng = np.random.default_rng(3)
+    stamps, axial, tracks = [], [], []
+    for t in range(40):
+        times = t * 10.0 + np.arange(5) * 1.5
+        # 10 % drift of a 0.4 m/s crawler within the track, 1 cm detection noise.
+        axial.extend(t * 2.4 + 0.04 * (times - times[0]) + rng.normal(0, 0.01, 5))
+        stamps.extend(times)
+        tracks.extend([t] * 5)
+    sigma = detection_noise_m(np.array(stamps), np.array(axial), np.array(tracks), 0.001)
+    assert sigma == pytest.approx(0.01, rel=0.25)
+    single = detection_noise_m(np.array([0.0]), np.array([1.0]), np.array([0]), 0.002)
+    assert single == 0.002
+
+
+def test_views_close_in_time_and_space_form_one_track() -> None:
+    views = [
+        synthetic_landmark(1, 1, stamp=0.0),
+        synthetic_landmark(1, 1, stamp=1.0),
+        synthetic_landmark(1, 2, stamp=2.0),
+        synthetic_landmark(1, 1, stamp=100.0),  # the same place on the way back
+    ]
+    identity = np.eye(4)
+    moved = np.eye(4)
+    moved[0, 3] = 2.0  # the third view's anchor is 2 m further: another boundary
+    anchors = {0.0: identity, 1.0: identity, 2.0: moved, 100.0: identity}
+    ids = group_views(views, anchors, radius_m=0.4, window_s=30.0)
+    assert ids[0] == ids[1]
+    assert len({ids[0], ids[2], ids[3]}) == 3
+
+
+def _probe(radius: float, z_near: float, speed: float) -> CorridorProbe:
+    return CorridorProbe(
+        radius_m=radius, z_near_m=z_near, speed_mps=speed, scan_rate_hz=10.0, probes=4
+    )
+
+
+def test_auto_parameters_scale_with_the_section() -> None:
+    pipe, tunnel = derive(_probe(0.3, 0.2, 0.4)), derive(_probe(3.0, 2.0, 0.4))
+    for section, key in [
+        ("submap", "voxel_m"),
+        ("contour", "inlier_distance_m"),
+        ("boundary", "dog_sigma_small_m"),
+        ("boundary", "dog_sigma_large_m"),
+        ("descriptor", "half_length_m"),
+    ]:
+        assert tunnel[section][key] == pytest.approx(10 * pipe[section][key]), key
+    # The tunnel preset's measured values are the reference at r = 3 m.
+    assert tunnel["submap"]["voxel_m"] == pytest.approx(0.055)
+    assert tunnel["descriptor"]["half_length_m"] == pytest.approx(2.4)
+
+
+def test_auto_range_follows_where_the_sensor_sees_the_whole_ring() -> None:
+    near, late = derive(_probe(3.0, 2.0, 1.3)), derive(_probe(3.0, 7.0, 1.3))
+    assert late["submap"]["max_range_m"] > near["submap"]["max_range_m"]
+    assert late["submap"]["max_range_m"] >= 7.0 + 2 * 2.4
+    grazing = 3.0 / math.tan(math.radians(12.0))
+    assert near["submap"]["max_range_m"] == pytest.approx(grazing, rel=1e-3)
+
+
+def test_auto_schedule_follows_the_speed() -> None:
+    slow, fast = derive(_probe(0.3, 0.2, 0.2)), derive(_probe(0.3, 0.2, 0.5))
+    assert slow["submap"]["interval_s"] == pytest.approx(
+        2.5 * fast["submap"]["interval_s"], rel=0.01
+    )
+    assert slow["matching"]["min_time_separation_s"] > fast["matching"]["min_time_separation_s"]
