@@ -144,3 +144,48 @@ def test_auto_schedule_follows_the_speed() -> None:
         2.5 * fast["submap"]["interval_s"], rel=0.01
     )
     assert slow["matching"]["min_time_separation_s"] > fast["matching"]["min_time_separation_s"]
+
+
+def test_tracked_boundaries_recover_each_pass_scale() -> None:
+    from decod_rs.graph import LoopConstraint
+    from decod_rs.odometry_scale import rescale_odometry
+
+    # A 20 m out-and-back at 0.5 m/s; the odometry reports 90 % of the outbound distance and
+    # 80 % on the way back. Boundaries every 2.5 m are seen from the two anchors before them.
+    t = np.arange(0.0, 80.0, 0.1)
+    x = np.where(t <= 40.0, 0.5 * t, 40.0 - 0.5 * t)
+    scale = np.where(t <= 40.0, 0.9, 0.8)
+    odo_x = np.concatenate([[0.0], np.cumsum(np.diff(x) * scale[1:])])
+
+    def poses(xs: np.ndarray) -> np.ndarray:
+        p = np.tile(np.eye(4), (xs.size, 1, 1))
+        p[:, 0, 3] = xs
+        return p
+
+    truth, odom = poses(x), poses(odo_x)
+    anchors = t[::10]  # one every second
+    a_odom = poses(np.interp(anchors, t, odo_x))
+    a_true = np.interp(anchors, t, x)
+    seq = []
+    for k in range(anchors.size - 1):
+        if anchors[k] in (40.0,):
+            continue
+        joint = a_true[k] + (1.2 if anchors[k] < 40.0 else -1.2)  # ahead of the motion
+        seq.append(
+            LoopConstraint(
+                query_index=k + 1,
+                db_index=k,
+                query_origin=np.array([joint - a_true[k + 1], 0.0, 0.0]),
+                query_axis=np.array([1.0, 0.0, 0.0]),
+                db_origin=np.array([joint - a_true[k], 0.0, 0.0]),
+                db_axis=np.array([1.0, 0.0, 0.0]),
+                kind="sequential",
+                sigma_m=0.01,
+            )
+        )
+    fixed, est = rescale_odometry(t, odom, anchors, a_odom, seq, 0.01, 40.0)
+    before = np.abs(odom[:, 0, 3] - truth[:, 0, 3]).max()
+    after = np.abs(fixed[:, 0, 3] - truth[:, 0, 3]).max()
+    assert before > 1.9  # -2 m at the far end, +2 m at the end
+    assert after < 0.05 * before, (after, est.passes)
+    assert [p["mean_scale"] for p in est.passes] == pytest.approx([1 / 0.9, 1 / 0.8], rel=0.01)

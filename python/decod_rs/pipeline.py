@@ -33,10 +33,11 @@ from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.io import find_imu_topic
 from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
+from decod_rs.odometry_scale import ScaleEstimate, rescale_odometry
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
 from decod_rs.selection import effective_db_origin, select_loops
-from decod_rs.sequential import SequentialFactors, sequential_constraints
+from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
 
@@ -276,7 +277,11 @@ def _match_and_select(
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
     m = cfg.matching
     tracks = group_views(
-        ex.landmarks, anchors, float(m.duplicate_radius_m), float(m.min_time_separation_s)
+        ex.landmarks,
+        anchors,
+        float(m.duplicate_radius_m),
+        float(m.min_time_separation_s),
+        same_boundary(m),
     )
     results, used_mode, db_size = _match(ex.landmarks, tracks, cfg, mode, split)
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)
@@ -305,6 +310,26 @@ def _factors(
         ex.landmarks, matched.tracks, anchors, anchor_stamps, _path_at(*scans), cfg
     )
     return constraints + seq.constraints, seq
+
+
+def _optimise(
+    scans: tuple[FloatArray, FloatArray],
+    ex: _Extracted,
+    split: float | None,
+    constraints: list[LoopConstraint],
+    seq: SequentialFactors | None,
+    cfg: Config,
+) -> tuple[CorrectionResult, ScaleEstimate | None]:
+    """The pose graph, started from the odometry rescaled by the tracked boundaries
+    (:mod:`decod_rs.odometry_scale`) when there are sequential factors."""
+    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    start, scale = scans[1], None
+    if seq is not None and seq.constraints:
+        anchor_odom = interpolate_poses(*scans, anchor_stamps)
+        start, scale = rescale_odometry(
+            scans[0], scans[1], anchor_stamps, anchor_odom, seq.constraints, seq.sigma_m, split
+        )
+    return correct_trajectory(scans[0], start, anchor_stamps, constraints, cfg.graph), scale
 
 
 def _write(
@@ -406,8 +431,7 @@ def run_log(
 
     t0 = time.perf_counter()
     constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
-    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
-    correction = correct_trajectory(*scans, anchor_stamps, constraints, cfg.graph)
+    correction, scale = _optimise(scans, ex, matched.split, constraints, seq, cfg)
     timings["optimise"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -434,6 +458,8 @@ def run_log(
     )
     report = _report(summary, log, processor, cfg, matched, constraints, correction, seq, joints)
     report.update(preset=preset, auto=auto, imu_topic=imu_topic, loops_enabled=loops)
+    if scale is not None and report["sequential"] is not None:
+        report["sequential"]["odometry_scale"] = scale.passes
     (out / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
     return summary
 

@@ -29,7 +29,7 @@ the profile bin and capped at the loop sigma. ``report.json`` records it.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,7 +43,7 @@ from decod_rs.tracks import world_origins
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["SequentialFactors", "detection_noise_m", "sequential_constraints"]
+__all__ = ["SequentialFactors", "detection_noise_m", "same_boundary", "sequential_constraints"]
 
 
 @dataclass
@@ -80,6 +80,12 @@ def detection_noise_m(
         sq += float(np.sum((axial[idx] - design @ coef) ** 2))
         dof += idx.size - 2
     return max(float(np.sqrt(sq / dof)) if dof else floor_m, floor_m)
+
+
+def same_boundary(matching: Any) -> Callable[[Landmark, Landmark], bool]:
+    """A track-link confirmation (:func:`decod_rs.tracks.group_views`): the matcher
+    verifies the two views as one boundary."""
+    return lambda earlier, later: _verified(later, earlier, matching)[0]
 
 
 def _verified(later: Landmark, earlier: Landmark, matching: Any) -> tuple[bool, str, float]:

@@ -9,6 +9,12 @@ components are the tracks (union-find). The radius stays well below the boundary
 (>= 1 m between pipe joints, >= 1.2 m between tunnel rings), so distinct boundaries never
 chain into one track.
 
+The radius alone is not enough when the odometry stalls: with joints 1 m apart and an
+odometry reporting 60 % of the distance, views of two joints taken two anchors apart landed
+within 1 cm of each other in the odometry frame (simulated hume pipe). So a link also needs
+the descriptors to agree (``confirm``: the matcher verifies the pair, same heading, chance
+agreement below ``matching.false_alarm_rate``).
+
 The matcher uses the tracks as the database's physical boundary ids: every view is kept (a
 query is compared with the view taken from the most similar distance), but the views of one
 boundary are one candidate, never each other's runner-up.
@@ -16,7 +22,7 @@ boundary are one candidate, never each other's runner-up.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,8 +55,11 @@ def group_views(
     anchors: dict[float, FloatArray],
     radius_m: float,
     window_s: float,
+    confirm: Callable[[Landmark, Landmark], bool] | None = None,
 ) -> NDArray[np.int64]:
-    """A track id per landmark (module docs); ids are 0.. in order of first view."""
+    """A track id per landmark (module docs); ids are 0.. in order of first view.
+    ``confirm(earlier, later)``: whether the descriptors agree that two views within the
+    radius show one boundary (None: the radius alone decides)."""
     n = len(landmarks)
     if n == 0:
         return np.zeros(0, dtype=np.int64)
@@ -66,6 +75,8 @@ def group_views(
                 continue  # one submap's boundaries are distinct by construction (NMS)
             if np.linalg.norm(where[i] - where[j]) < radius_m:
                 ri, rj = _find(parent, int(i)), _find(parent, int(j))
+                if ri == rj or (confirm is not None and not confirm(landmarks[i], landmarks[j])):
+                    continue
                 if ri != rj:
                     parent[max(ri, rj)] = min(ri, rj)
     roots = [_find(parent, k) for k in range(n)]

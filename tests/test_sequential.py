@@ -1,0 +1,108 @@
+"""Boundaries tracked within each pass (sequential factors, the joint registry) end to end on
+simulated pipes with uneven drift: the outbound pass 5 % short, the return 15 % short (the
+case where loops alone meet the passes halfway and make the outbound pass worse)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from decod_rs.evaluate import evaluate_run
+from decod_rs.pipeline import run_log
+from decod_rs.sim import simulate
+from decod_rs.tum import interpolate_poses, read_tum
+
+
+@pytest.fixture(scope="module")
+def uneven(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    sim = tmp_path_factory.mktemp("uneven") / "sim"
+    simulate("hume", sim, seed=31, length_m=30.0, drift="legs:-0.05,-0.15", progress=False)
+    return sim
+
+
+def _run(sim: Path, out: Path, **kwargs: object) -> tuple[dict, dict]:
+    run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False, **kwargs)  # type: ignore[arg-type]
+    result, _ = evaluate_run(out, sim / "gt.tum", sim / "joints.json")
+    return result, json.loads((out / "report.json").read_text())
+
+
+def _far_end_error(run: Path, sim: Path) -> float:
+    """Axial error of the corrected trajectory at the far end, metres."""
+    gt_t, gt = read_tum(sim / "gt.tum")
+    t, poses = read_tum(run / "corrected.tum")
+    far = int(np.argmax(gt[:, 0, 3]))
+    here = interpolate_poses(t, poses, gt_t[far : far + 1])[0]
+    return float(here[0, 3] - gt[far, 0, 3])
+
+
+def test_tracks_correct_the_pass_that_loops_alone_cannot(uneven: Path, tmp_path: Path) -> None:
+    with_tracks, report = _run(uneven, tmp_path / "seq")
+    loops_only, plain = _run(uneven, tmp_path / "loops", sequential=False)
+    odo = with_tracks["trajectory"]["odometry"]["rmse_m"]
+    rmse = with_tracks["trajectory"]["corrected"]["rmse_m"]
+    # The paper's graph makes the trajectory worse here (meets the passes halfway); with the
+    # tracks it is better than the odometry by more than half (0.36 of 1.31 m on seed 1).
+    assert loops_only["trajectory"]["corrected"]["rmse_m"] > 0.8 * odo
+    assert rmse < 0.5 * odo, (rmse, odo, report["sequential"])
+    assert report["counts"]["sequential_factors"] > 10
+    assert plain["counts"]["sequential_factors"] == 0 and plain["sequential"] is None
+    # The outbound pass keeps its length: far-end error within 1.5 % of the 30 m (the
+    # odometry's is 5 %, 1.5 m).
+    assert abs(_far_end_error(tmp_path / "seq", uneven)) < 0.015 * 30.0
+
+
+def test_joint_registry_lists_each_confirmed_joint(uneven: Path, tmp_path: Path) -> None:
+    _run(uneven, tmp_path / "run")
+    with (tmp_path / "run" / "joints.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    confirmed = np.array([float(r["chainage_m"]) for r in rows if r["loop_confirmed"] == "1"])
+    meta = json.loads((uneven / "joints.json").read_text())
+    start = meta["trajectory"]["x_start_m"]
+    chainages = np.array(meta["joints_x_m"]) - start
+    chainages = chainages[(chainages > 0.5) & (chainages < 29.0)]  # seen on both passes
+    # Every joint has a loop-confirmed registry row at its chainage within 2 % (the odometry
+    # is 5 % off outbound; 1-1.4 % measured on seed 31, short: views of a receding groove
+    # put it slightly nearer). Other confirmed rows are wall features that are not joints
+    # (lateral connections), which the registry rightly lists too.
+    errors = [np.min(np.abs(confirmed - c)) for c in chainages]
+    within = [e <= 0.02 * c + 0.05 for e, c in zip(errors, chainages, strict=True)]
+    assert np.mean(within) >= 0.8, list(zip(chainages.round(2), np.round(errors, 3), strict=True))
+    with (tmp_path / "run" / "landmarks.csv").open() as fh:
+        landmarks = list(csv.DictReader(fh))
+    assert all(int(lm["track_id"]) >= 0 and int(lm["joint_id"]) >= 0 for lm in landmarks)
+
+
+def test_joints_closer_than_the_drift_of_a_submap_interval_make_no_wrong_track(
+    tmp_path: Path,
+) -> None:
+    # Joints 1 m apart; the odometry reports 60 % of the distance (a frontend that nearly
+    # stalls): between two anchors it is off by more than the track radius.
+    sim = tmp_path / "sim"
+    simulate(
+        "hume",
+        sim,
+        seed=32,
+        length_m=15.0,
+        drift="legs:-0.4,-0.4",
+        scene_overrides={"segment_length_m": 1.0},
+        progress=False,
+    )
+    _run(sim, tmp_path / "run")
+    gt_t, gt = read_tum(sim / "gt.tum")
+    with (tmp_path / "run" / "landmarks.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    by_track: dict[int, list[float]] = {}
+    for r in rows:
+        pose = interpolate_poses(gt_t, gt, np.array([float(r["stamp"])]))[0]
+        origin = np.array([float(r[f"origin_{a}"]) for a in "xyz"])
+        by_track.setdefault(int(r["track_id"]), []).append(
+            float((pose[:3, :3] @ origin)[0] + pose[0, 3])
+        )
+    spans = [max(xs) - min(xs) for xs in by_track.values()]
+    # Every track holds views of one joint: its views lie within a few cm in the true world,
+    # never a joint spacing (1 m) apart.
+    assert max(spans) < 0.3, sorted(spans)[-5:]
