@@ -16,7 +16,8 @@ line each, which g2o itself skips with a warning and other readers can parse::
 JSON (``write_graph_json``): ``{"format": "decod-graph-1", "loop_factor", "poses": [[x y z
 qx qy qz qw], ...], "odometry": [{"from", "to", "measurement": [x y z qx qy qz qw],
 "sigmas": [rx ry rz tx ty tz]}], "loops": [{"query_index", "db_index", "query_origin",
-"query_axis", "db_origin", "db_axis", "inliers", "score", "sigmas", "huber_k"}]}``, sigmas
+"query_axis", "db_origin", "db_axis", "inliers", "score", "kind", "sigmas", "huber_k"}]}``
+(``kind``: ``loop`` or ``sequential``; each factor carries its own sigmas), sigmas
 in GTSAM's rotation-first order.
 """
 
@@ -37,7 +38,6 @@ from decod_rs.graph import (
     _check_loops,
     _inverse,
     _pose3_measurement,
-    loop_noise_sigmas,
     odometry_sigmas,
 )
 from decod_rs.tum import check_poses, rotation_to_quaternion
@@ -77,8 +77,8 @@ def write_g2o(
     for k in range(p.shape[0] - 1):
         rel = _inverse(p[k]) @ p[k + 1]
         lines.append(f"EDGE_SE3:QUAT {k} {k + 1} {_fmt(_tq(rel))} {_fmt(_g2o_information(sig[k]))}")
-    loop_sig = loop_noise_sigmas(cfg)
     for lc in loops:
+        loop_sig = lc.sigmas(cfg)
         if cfg.loop_factor == "pose3":
             meas = _pose3_measurement(p, lc).matrix()
             lines.append(
@@ -103,7 +103,6 @@ def write_graph_json(
     p = check_poses(poses)
     _check_loops(loops, p.shape[0])
     sig = odometry_sigmas(p, cfg)
-    loop_sig = [float(v) for v in loop_noise_sigmas(cfg)]
     doc: dict[str, Any] = {
         "format": "decod-graph-1",
         "loop_factor": cfg.loop_factor,
@@ -127,7 +126,8 @@ def write_graph_json(
                 "db_axis": lc.db_axis.tolist(),
                 "inliers": int(lc.inliers),
                 "score": float(lc.score),
-                "sigmas": loop_sig,
+                "kind": lc.kind,
+                "sigmas": [float(v) for v in lc.sigmas(cfg)],
                 "huber_k": float(cfg.huber_k),
             }
             for lc in loops

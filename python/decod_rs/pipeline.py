@@ -319,9 +319,10 @@ def _optimise(
     constraints: list[LoopConstraint],
     seq: SequentialFactors | None,
     cfg: Config,
-) -> tuple[CorrectionResult, ScaleEstimate | None]:
+) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
     """The pose graph, started from the odometry rescaled by the tracked boundaries
-    (:mod:`decod_rs.odometry_scale`) when there are sequential factors."""
+    (:mod:`decod_rs.odometry_scale`) when there are sequential factors; also returns the
+    scan odometry the graph started from."""
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     start, scale = scans[1], None
     if seq is not None and seq.constraints:
@@ -329,20 +330,22 @@ def _optimise(
         start, scale = rescale_odometry(
             scans[0], scans[1], anchor_stamps, anchor_odom, seq.constraints, seq.sigma_m, split
         )
-    return correct_trajectory(scans[0], start, anchor_stamps, constraints, cfg.graph), scale
+    correction = correct_trajectory(scans[0], start, anchor_stamps, constraints, cfg.graph)
+    return correction, scale, start
 
 
 def _write(
     out: Path,
     ex: _Extracted,
     matched: _Matched,
-    scans: tuple[FloatArray, FloatArray],
+    odometry: tuple[tuple[FloatArray, FloatArray], FloatArray],
     correction: CorrectionResult,
     constraints: list[LoopConstraint],
     cfg: Config,
 ) -> list[Joint]:
-    """The contract's files: trajectories, loops, landmarks, joints, the graph."""
-    scan_stamps, scan_odom = scans
+    """The contract's files: trajectories, loops, landmarks, joints, the graph (on the
+    odometry the graph started from: ``odometry[1]``)."""
+    (scan_stamps, scan_odom), graph_odom = odometry
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
     write_tum(out / "corrected.tum", scan_stamps, correction.poses)
@@ -366,7 +369,7 @@ def _write(
     )
     # The graph on the submap anchors, for users who optimise elsewhere (g2o and JSON).
     if anchor_stamps.size:
-        anchor_odom = interpolate_poses(scan_stamps, scan_odom, anchor_stamps)
+        anchor_odom = interpolate_poses(scan_stamps, graph_odom, anchor_stamps)
         write_g2o(out / "graph.g2o", anchor_odom, constraints, cfg.graph)
         write_graph_json(out / "graph.json", anchor_odom, constraints, cfg.graph)
     return joints
@@ -431,11 +434,11 @@ def run_log(
 
     t0 = time.perf_counter()
     constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
-    correction, scale = _optimise(scans, ex, matched.split, constraints, seq, cfg)
+    correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
     timings["optimise"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    joints = _write(out, ex, matched, scans, correction, constraints, cfg)
+    joints = _write(out, ex, matched, (scans, start), correction, constraints, cfg)
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
