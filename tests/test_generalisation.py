@@ -51,6 +51,7 @@ def test_auto_configuration_closes_loops_where_the_presets_did_not(
     simulate(out_dir=sim, seed=21, drift=2.0, progress=False, **CASES[case])  # type: ignore[arg-type]
     result, report = _run(sim, tmp_path / "run")
     assert report["preset"] == "auto"
+    assert report["no_loop_reason"] is None
     assert report["auto"]["measured"]["radius_m"] > 0
     fine, coarse = result["loops"]["fine"], result["loops"]["coarse"]
     # Loops found (the presets accepted none of these), all right at 0.3 m, none wrong even
@@ -69,3 +70,5 @@ def test_auto_configuration_gives_the_aliased_pipe_no_loop(tmp_path: Path) -> No
     result, report = _run(sim, tmp_path / "run")
     assert result["loops"]["fine"]["accepted"] == 0, report["query_rejections"]
     assert report["query_rejections"].get("not_unique", 0) > 0
+    # A run without loops says why.
+    assert "queries rejected" in report["no_loop_reason"], report["no_loop_reason"]

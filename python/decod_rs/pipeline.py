@@ -36,7 +36,7 @@ from decod_rs.matching import LandmarkDatabase
 from decod_rs.odometry_scale import ScaleEstimate, rescale_odometry
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
-from decod_rs.selection import effective_db_origin, select_loops
+from decod_rs.selection import effective_db_origin, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
@@ -459,7 +459,9 @@ def run_log(
         timings_s=timings,
         rejections=ex.rejections,
     )
-    report = _report(summary, log, processor, cfg, matched, constraints, correction, seq, joints)
+    report = _report(
+        summary, log, ex, processor, cfg, matched, constraints, correction, seq, joints
+    )
     report.update(preset=preset, auto=auto, imu_topic=imu_topic, loops_enabled=loops)
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
@@ -470,6 +472,7 @@ def run_log(
 def _report(
     summary: RunSummary,
     log: Path,
+    ex: _Extracted,
     processor: _core.LogProcessor,
     cfg: Config,
     matched: _Matched,
@@ -484,7 +487,18 @@ def _report(
         if not ok:
             rejected[why or "unknown"] = rejected.get(why or "unknown", 0) + 1
     loop_factors = sum(1 for c in constraints if c.kind == "loop")
+    split = summary.split_stamp
+    stamps = np.array([lm.submap_stamp for lm in ex.landmarks])
+    outbound = int(np.sum(stamps <= split)) if split is not None else int(stamps.size)
+    no_loop = why_no_loop(
+        (outbound, int(stamps.size) - outbound),
+        summary.queries,
+        summary.rejections,
+        rejected,
+        split,
+    )
     return {
+        "no_loop_reason": None if summary.accepted else no_loop,
         "log": str(log),
         "points_topic": processor.points_topic,
         "mode": summary.mode,

@@ -47,6 +47,7 @@ __all__ = [
     "effective_db_origin",
     "select_consistent",
     "select_loops",
+    "why_no_loop",
 ]
 
 
@@ -195,3 +196,31 @@ def select_loops(
         keep[k] = ok
         reasons[k] = why
     return keep, reasons
+
+
+def why_no_loop(
+    landmarks_per_pass: tuple[int, int],
+    queries: int,
+    extraction_rejections: dict[str, int],
+    query_rejections: dict[str, int],
+    split_stamp: float | None,
+) -> str:
+    """A sentence for ``report.json`` when a run closes no loop: the first stage that came up
+    empty, with its commonest reasons."""
+
+    def top(counts: dict[str, int]) -> str:
+        ranked = sorted(counts.items(), key=lambda kv: -kv[1])[:3]
+        return ", ".join(f"{k} {v}" for k, v in ranked)
+
+    outbound, back = landmarks_per_pass
+    if outbound + back == 0:
+        why = top(extraction_rejections)
+        return "no boundary detected in any submap" + (f" (submaps rejected: {why})" if why else "")
+    if split_stamp is None:
+        return "no return pass found (the run does not come back): nothing to close a loop with"
+    if outbound == 0:
+        return "the sensor never sampled a boundary on the outbound pass"
+    if back == 0:
+        return "the sensor never sampled a boundary on the return pass"
+    why = top(query_rejections)
+    return f"all {queries} queries rejected" + (f": {why}" if why else "")
