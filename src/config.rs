@@ -245,6 +245,14 @@ pub struct MatchingConfig {
     /// at this level either (`matching::null_model`). Absent from a stored config: 0.01.
     #[serde(default = "default_uniqueness_alpha")]
     pub uniqueness_alpha: f64,
+    /// `acceptance = "null_model"`: fewer inliers than this are never accepted, whatever the
+    /// null model says. Its union bound treats correspondences as independent; in corridors
+    /// with strong repeated structure (steel arches every 1.2 m) they are not, and in the
+    /// generalisation matrix (50 simulated cells, ~1,400 accepted loops) every wrong loop
+    /// the null model let through had K = 5 (4 wrong against 53 right at K = 5; none wrong
+    /// among the ~1,350 with K >= 6). Absent from a stored config: 6.
+    #[serde(default = "default_min_inliers_floor")]
+    pub min_inliers_floor: usize,
     /// Only loops whose anchors lie within this path length (query and database sides
     /// together) of each other can corroborate, which caps the allowance at
     /// `consistency_tolerance_m + consistency_drift_fraction * consistency_window_m`.
@@ -257,6 +265,10 @@ fn fixed_acceptance() -> String {
 
 fn default_false_alarm_rate() -> f64 {
     1e-3
+}
+
+fn default_min_inliers_floor() -> usize {
+    6
 }
 
 fn default_uniqueness_alpha() -> f64 {
@@ -425,6 +437,7 @@ impl DecodConfig {
                 acceptance: "null_model".into(),
                 false_alarm_rate: default_false_alarm_rate(),
                 uniqueness_alpha: default_uniqueness_alpha(),
+                min_inliers_floor: default_min_inliers_floor(),
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),

@@ -391,6 +391,8 @@ def run_log(
     sequential: bool | None = None,
     plots: bool = True,
     progress: bool = True,
+    map: bool = False,
+    rerun: str | Path | None = None,
 ) -> RunSummary:
     """Run DeCOD on ``log`` and write the contract's files into ``out_dir`` (paper Alg. 1:
     extract -> match -> select -> optimise -> write).
@@ -401,11 +403,18 @@ def run_log(
     never; gravity is then the sensor's -z). ``loops=False`` disables every factor (the
     output trajectory is then the odometry); the matching still runs and is reported.
     ``sequential`` overrides ``graph.sequential`` (False: the paper's loops-only graph).
+    ``map=True`` also writes the corrected and odometry maps (PLY) and the map-consistency
+    figure; ``rerun=FILE.rrd`` a 3D recording (rerun-sdk, extra ``rerun``): see
+    :mod:`decod_rs.visuals`.
     """
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
     if preset not in PRESET_CHOICES:
         raise ValueError(f"preset: {preset!r} is not one of {PRESET_CHOICES}")
+    if rerun is not None:
+        from decod_rs.recording import require_rerun
+
+        require_rerun()  # fail before the run, not after it
     log, out = Path(log), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if imu_topic is None and use_imu:
@@ -466,6 +475,14 @@ def run_log(
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
     (out / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
+    if map or rerun is not None:
+        from decod_rs.visuals import write_visuals
+
+        summary.timings_s.update(
+            write_visuals(
+                out, processor, scans, correction.poses, ex.landmarks, matched, map=map, rerun=rerun
+            )
+        )
     return summary
 
 
@@ -517,6 +534,7 @@ def _report(
             "sequential_factors": len(constraints) - loop_factors,
         },
         "extraction_rejections": summary.rejections,
+        "extraction_rejection_messages": ex.rejection_messages[:200],
         "query_rejections": rejected,
         "sequential": None if seq is None else seq.report(),
         "optimisation": {

@@ -350,12 +350,12 @@ fn compare_heading(
 }
 
 /// The inlier count below which a pair is rejected on its own: `min_inliers` under the
-/// paper's fixed rule; under the null model ([`null_model`]) 3, the fewest correspondences
-/// that say more than "one translation fits two points", the rest being the null model's
-/// decision per query.
+/// paper's fixed rule; under the null model ([`null_model`]) `min_inliers_floor` (never
+/// below 3, the fewest correspondences that say more than "one translation fits two
+/// points"), the rest being the null model's decision per query.
 pub fn pair_floor(cfg: &MatchingConfig) -> usize {
     if cfg.acceptance == "null_model" {
-        3
+        cfg.min_inliers_floor.max(3)
     } else {
         cfg.min_inliers
     }
