@@ -86,18 +86,18 @@ def _relations(
     for i in range(n):
         for j in range(i + 1, n):
             a, b = loops[i], loops[j]
-            if a.query_stamp == b.query_stamp:
-                continue
             sep = abs(a.query_path_m - b.query_path_m) + abs(a.db_path_m - b.db_path_m)
             if sep > window_m:
                 continue
             allowance = tolerance_m + drift_fraction * sep
-            if float(np.linalg.norm(a.correction - b.correction)) <= allowance:
-                support[i].add(j)
-                support[j].add(i)
-            else:
+            if float(np.linalg.norm(a.correction - b.correction)) > allowance:
                 conflicts[i].add(j)
                 conflicts[j].add(i)
+            elif a.query_stamp != b.query_stamp:
+                # Loops of one query submap may contradict each other but do not
+                # corroborate each other: they share the query's pose.
+                support[i].add(j)
+                support[j].add(i)
     return conflicts, support
 
 
