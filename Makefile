@@ -12,7 +12,7 @@ $(VENV)/bin/activate:
 
 # Build the Rust extension (release) and install decod_rs with its dev extras.
 setup: $(VENV)/bin/activate
-	$(VENV)/bin/maturin develop --release --extras dev
+	$(VENV)/bin/maturin develop --release --extras dev,batch
 
 demo: setup
 	$(VENV)/bin/decod demo

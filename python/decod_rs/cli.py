@@ -11,6 +11,7 @@ from decod_rs import __version__
 
 # Module names under decod_rs.commands, in the order `decod --help` lists them.
 COMMANDS = [
+    "batch",
     "dump_config",
     "evaluate",
     "inspect",
@@ -18,6 +19,7 @@ COMMANDS = [
     "demo",
     "run",
     "simulate",
+    "sweep",
 ]
 
 

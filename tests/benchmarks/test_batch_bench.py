@@ -1,0 +1,62 @@
+"""Wall time of ``decod batch`` on N logs against N sequential ``run_log`` calls
+(pytest-benchmark; ``make bench`` only: skipped when benchmarks are disabled).
+
+The logs: N = 4 simulated hume pipes (seeds 0-3, 20 m out and back, pipe preset, no
+plots). The batch runs on the default engine (Dask's LocalCluster when the batch extra is
+installed, else the process pool) with one worker per core; its figure includes starting
+and stopping the cluster, as a user's ``decod batch`` does.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from pytest_benchmark.fixture import BenchmarkFixture
+
+from decod_rs.batch.batch import run_batch
+from decod_rs.batch.engine import cores, open_engine
+from decod_rs.batch.jobs import LogJob, RunOptions
+from decod_rs.pipeline import run_log
+from decod_rs.sim import simulate
+
+N_LOGS = 4
+LENGTH_M = 20.0
+OPTIONS = RunOptions(preset="pipe", imu_topic="/imu", plots=False)
+
+
+def _benchmarks_disabled(config: pytest.Config) -> bool:
+    # pytest-benchmark's own rule (session.py): --benchmark-enable beats the addopts' disable.
+    return bool(config.getoption("benchmark_disable")) and not config.getoption("benchmark_enable")
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory, pytestconfig: pytest.Config) -> list[Path]:
+    if _benchmarks_disabled(pytestconfig):
+        pytest.skip("wall-time benchmark: run by `make bench`")
+    root = tmp_path_factory.mktemp("bench_logs")
+    for seed in range(N_LOGS):
+        simulate("hume", root / f"s{seed}", seed=seed, length_m=LENGTH_M, progress=False)
+    return [root / f"s{seed}" / "log" for seed in range(N_LOGS)]
+
+
+def test_batch_of_n_logs(benchmark: BenchmarkFixture, logs: list[Path], tmp_path: Path) -> None:
+    jobs = [LogJob(f"log{k}", log, OPTIONS) for k, log in enumerate(logs)]
+
+    def batch() -> int:
+        with open_engine("auto", workers=cores()) as engine:
+            benchmark.extra_info["engine"] = engine.description
+            return run_batch(jobs, tmp_path / "batch", engine, force=True).failed
+
+    assert benchmark.pedantic(batch, rounds=2, iterations=1) == 0
+    benchmark.extra_info.update(logs=N_LOGS, cores=cores())
+
+
+def test_n_sequential_runs(benchmark: BenchmarkFixture, logs: list[Path], tmp_path: Path) -> None:
+    def sequential() -> int:
+        for k, log in enumerate(logs):
+            run_log(log, tmp_path / f"log{k}", **OPTIONS.run_kwargs())
+        return len(logs)
+
+    assert benchmark.pedantic(sequential, rounds=2, iterations=1) == N_LOGS
+    benchmark.extra_info.update(logs=N_LOGS, cores=cores())
