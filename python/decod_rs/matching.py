@@ -17,7 +17,7 @@ Example::
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +41,20 @@ def matching_config_json(config: MatchingConfigLike = None) -> str:
 def compare(query: Landmark, candidate: Landmark, config: MatchingConfigLike = None) -> PairResult:
     """Compare two landmarks under both headings (0° and 180°); the better one is returned."""
     return _core.compare(query, candidate, matching_config_json(config))
+
+
+def compare_pairs(
+    landmarks: Sequence[Landmark],
+    pairs: Sequence[tuple[int, int]],
+    config: MatchingConfigLike = None,
+) -> list[PairResult]:
+    """Many comparisons at once: ``pairs`` of (query, candidate) indices into ``landmarks``,
+    each landmark prepared once, pairs in parallel; results in the order of ``pairs``."""
+    if not pairs:
+        return []
+    return _core.compare_pairs(
+        list(landmarks), [(int(i), int(j)) for i, j in pairs], matching_config_json(config)
+    )
 
 
 def synthetic_landmark(

@@ -281,7 +281,7 @@ def _match_and_select(
         anchors,
         float(m.duplicate_radius_m),
         float(m.min_time_separation_s),
-        same_boundary(m),
+        same_boundary(ex.landmarks, m),
     )
     results, used_mode, db_size = _match(ex.landmarks, tracks, cfg, mode, split)
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)

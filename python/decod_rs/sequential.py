@@ -36,9 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from decod_rs._core import Landmark
+from decod_rs._core import Landmark, PairResult
 from decod_rs.graph import LoopConstraint
-from decod_rs.matching import compare
+from decod_rs.matching import compare_pairs
 from decod_rs.tracks import world_origins
 
 FloatArray = NDArray[np.float64]
@@ -82,21 +82,28 @@ def detection_noise_m(
     return max(float(np.sqrt(sq / dof)) if dof else floor_m, floor_m)
 
 
-def same_boundary(matching: Any) -> Callable[[Landmark, Landmark], bool]:
-    """A track-link confirmation (:func:`decod_rs.tracks.group_views`): the matcher
-    verifies the two views as one boundary."""
-    return lambda earlier, later: _verified(later, earlier, matching)[0]
-
-
-def _verified(later: Landmark, earlier: Landmark, matching: Any) -> tuple[bool, str, float]:
-    pair = compare(later, earlier, matching)
+def _verdict(pair: PairResult, matching: Any) -> str:
+    """Why a within-pass pair is not one boundary ("" if it is)."""
     if pair.rejection is not None:
-        return False, pair.rejection, 0.0
+        return pair.rejection
     if abs(pair.heading_deg) > 90.0:
-        return False, "heading", 0.0
+        return "heading"
     if pair.chance > float(matching.false_alarm_rate):
-        return False, "chance", 0.0
-    return True, "", float(pair.dz_m)
+        return "chance"
+    return ""
+
+
+def same_boundary(
+    landmarks: Sequence[Landmark], matching: Any
+) -> Callable[[list[tuple[int, int]]], list[bool]]:
+    """A track-link confirmation (:func:`decod_rs.tracks.group_views`): the matcher
+    verifies each (earlier, later) pair as one boundary (all pairs in one batch)."""
+
+    def confirm(links: list[tuple[int, int]]) -> list[bool]:
+        pairs = compare_pairs(landmarks, [(j, i) for i, j in links], matching)
+        return [not _verdict(p, matching) for p in pairs]
+
+    return confirm
 
 
 def sequential_constraints(
@@ -122,33 +129,35 @@ def sequential_constraints(
         detection_noise_m(stamps, axial, tracks, float(cfg.boundary.profile_bin_m)), loop_sigma
     )
     out = SequentialFactors(constraints=[], sigma_m=sigma, pairs=0, rejected={})
+    consecutive = []
     for t in np.unique(tracks):
         views = sorted((int(k) for k in np.flatnonzero(tracks == t)), key=lambda k: stamps[k])
-        for a, b in itertools.pairwise(views):
-            if stamps[a] == stamps[b]:
-                continue
-            out.pairs += 1
-            ok, why, dz = _verified(landmarks[b], landmarks[a], m)
-            earlier = np.asarray(landmarks[a].origin) + dz * np.asarray(landmarks[a].axis)
-            if ok:
-                pose = anchors[stamps[a]]
-                shift = pose[:3, :3] @ earlier + pose[:3, 3] - where[b]
-                path = abs(path_at(stamps[b]) - path_at(stamps[a]))
-                allowance = m.consistency_tolerance_m + m.consistency_drift_fraction * path
-                ok, why = (True, "") if np.linalg.norm(shift) <= allowance else (False, "jump")
-            if not ok:
-                out.rejected[why] = out.rejected.get(why, 0) + 1
-                continue
-            out.constraints.append(
-                LoopConstraint(
-                    query_index=int(np.argmin(np.abs(anchor_stamps - stamps[b]))),
-                    db_index=int(np.argmin(np.abs(anchor_stamps - stamps[a]))),
-                    query_origin=np.asarray(landmarks[b].origin, dtype=np.float64),
-                    query_axis=np.asarray(landmarks[b].axis, dtype=np.float64),
-                    db_origin=earlier,
-                    db_axis=np.asarray(landmarks[a].axis, dtype=np.float64),
-                    kind="sequential",
-                    sigma_m=sigma,
-                )
+        consecutive += [(a, b) for a, b in itertools.pairwise(views) if stamps[a] != stamps[b]]
+    results = compare_pairs(landmarks, [(b, a) for a, b in consecutive], m)
+    out.pairs = len(consecutive)
+    for (a, b), pair in zip(consecutive, results, strict=True):
+        why = _verdict(pair, m)
+        ok = not why
+        earlier = np.asarray(landmarks[a].origin) + pair.dz_m * np.asarray(landmarks[a].axis)
+        if ok:
+            pose = anchors[stamps[a]]
+            shift = pose[:3, :3] @ earlier + pose[:3, 3] - where[b]
+            path = abs(path_at(stamps[b]) - path_at(stamps[a]))
+            allowance = m.consistency_tolerance_m + m.consistency_drift_fraction * path
+            ok, why = (True, "") if np.linalg.norm(shift) <= allowance else (False, "jump")
+        if not ok:
+            out.rejected[why] = out.rejected.get(why, 0) + 1
+            continue
+        out.constraints.append(
+            LoopConstraint(
+                query_index=int(np.argmin(np.abs(anchor_stamps - stamps[b]))),
+                db_index=int(np.argmin(np.abs(anchor_stamps - stamps[a]))),
+                query_origin=np.asarray(landmarks[b].origin, dtype=np.float64),
+                query_axis=np.asarray(landmarks[b].axis, dtype=np.float64),
+                db_origin=earlier,
+                db_axis=np.asarray(landmarks[a].axis, dtype=np.float64),
+                kind="sequential",
+                sigma_m=sigma,
             )
+        )
     return out

@@ -31,7 +31,7 @@ from decod_rs._core import Landmark
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["group_views", "world_origins"]
+__all__ = ["candidate_links", "group_views", "world_origins"]
 
 
 def world_origins(landmarks: Sequence[Landmark], anchors: dict[float, FloatArray]) -> FloatArray:
@@ -50,23 +50,18 @@ def _find(parent: list[int], i: int) -> int:
     return i
 
 
-def group_views(
+def candidate_links(
     landmarks: Sequence[Landmark],
     anchors: dict[float, FloatArray],
     radius_m: float,
     window_s: float,
-    confirm: Callable[[Landmark, Landmark], bool] | None = None,
-) -> NDArray[np.int64]:
-    """A track id per landmark (module docs); ids are 0.. in order of first view.
-    ``confirm(earlier, later)``: whether the descriptors agree that two views within the
-    radius show one boundary (None: the radius alone decides)."""
-    n = len(landmarks)
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
+) -> list[tuple[int, int]]:
+    """Pairs (earlier, later) of views from different submaps less than ``window_s`` apart
+    whose origins lie within ``radius_m`` in the odometry frame."""
     where = world_origins(landmarks, anchors)
     stamps = np.array([lm.submap_stamp for lm in landmarks])
-    parent = list(range(n))
     order = np.argsort(stamps, kind="stable")
+    links = []
     for a, i in enumerate(order):
         for j in order[a + 1 :]:
             if stamps[j] - stamps[i] >= window_s:
@@ -74,14 +69,34 @@ def group_views(
             if stamps[j] == stamps[i]:
                 continue  # one submap's boundaries are distinct by construction (NMS)
             if np.linalg.norm(where[i] - where[j]) < radius_m:
-                ri, rj = _find(parent, int(i)), _find(parent, int(j))
-                if ri == rj or (confirm is not None and not confirm(landmarks[i], landmarks[j])):
-                    continue
-                if ri != rj:
-                    parent[max(ri, rj)] = min(ri, rj)
+                links.append((int(i), int(j)))
+    return links
+
+
+def group_views(
+    landmarks: Sequence[Landmark],
+    anchors: dict[float, FloatArray],
+    radius_m: float,
+    window_s: float,
+    confirm: Callable[[list[tuple[int, int]]], list[bool]] | None = None,
+) -> NDArray[np.int64]:
+    """A track id per landmark (module docs); ids are 0.. in order of first view.
+    ``confirm(links)``: for each candidate link (earlier, later), whether the descriptors
+    agree that the two views show one boundary (None: the radius alone decides)."""
+    n = len(landmarks)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    links = candidate_links(landmarks, anchors, radius_m, window_s)
+    confirmed = [True] * len(links) if confirm is None else confirm(links)
+    parent = list(range(n))
+    for (i, j), ok in zip(links, confirmed, strict=True):
+        ri, rj = _find(parent, i), _find(parent, j)
+        if ok and ri != rj:
+            parent[max(ri, rj)] = min(ri, rj)
+    stamps = np.array([lm.submap_stamp for lm in landmarks])
     roots = [_find(parent, k) for k in range(n)]
     first: dict[int, int] = {}
     ids = np.empty(n, dtype=np.int64)
-    for k in order:
+    for k in np.argsort(stamps, kind="stable"):
         ids[k] = first.setdefault(roots[k], len(first))
     return ids

@@ -221,8 +221,63 @@ pub fn compare(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> 
     let shape = PatchShape::new(cfg);
     let q = PreparedLandmark::new(Arc::new(query.clone()), cfg, &shape)?;
     let c = PreparedLandmark::new(Arc::new(candidate.clone()), cfg, &shape)?;
-    let side = QuerySide::new(&q, &shape);
-    let mut pair = compare_prepared(&q, &side, &c, cfg, &shape);
+    Ok(compare_with_chance(&q, &c, cfg, &shape))
+}
+
+/// Many comparisons among `landmarks` at once: `pairs` of (query, candidate) indices, each
+/// landmark prepared once, pairs in parallel (rayon). The within-pass association of views
+/// (boundary tracks) compares hundreds of pairs of few landmarks: preparing each landmark
+/// per pair cost more than the comparisons. An index out of range is an error naming it.
+pub fn compare_pairs(
+    landmarks: &[Arc<Landmark>],
+    pairs: &[(usize, usize)],
+    cfg: &MatchingConfig,
+) -> Result<Vec<PairResult>> {
+    use rayon::prelude::*;
+    if let Some(&(i, j)) = pairs
+        .iter()
+        .find(|&&(i, j)| i >= landmarks.len() || j >= landmarks.len())
+    {
+        return Err(DecodError::invalid(
+            "pairs",
+            format!("({i}, {j}) out of range for {} landmarks", landmarks.len()),
+        ));
+    }
+    for &(i, j) in pairs {
+        check_grids(&landmarks[i], &landmarks[j])?;
+    }
+    let mut used = vec![false; landmarks.len()];
+    for &(i, j) in pairs {
+        used[i] = true;
+        used[j] = true;
+    }
+    let shape = PatchShape::new(cfg);
+    let prepared = landmarks
+        .par_iter()
+        .zip(used.par_iter())
+        .map(|(l, &u)| {
+            u.then(|| PreparedLandmark::new(l.clone(), cfg, &shape))
+                .transpose()
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(pairs
+        .par_iter()
+        .filter_map(|&(i, j)| match (&prepared[i], &prepared[j]) {
+            (Some(q), Some(c)) => Some(compare_with_chance(q, c, cfg, &shape)),
+            _ => None,
+        })
+        .collect())
+}
+
+/// [`compare_prepared`] plus the pair's null-model chance.
+fn compare_with_chance(
+    q: &PreparedLandmark,
+    c: &PreparedLandmark,
+    cfg: &MatchingConfig,
+    shape: &PatchShape,
+) -> PairResult {
+    let side = QuerySide::new(q, shape);
+    let mut pair = compare_prepared(q, &side, c, cfg, shape);
     if cfg.verification {
         pair.chance = null_model::pair_p_value(
             &q.keypoints,
@@ -234,7 +289,7 @@ pub fn compare(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> 
             cfg,
         );
     }
-    Ok(pair)
+    pair
 }
 
 /// The pairwise part on prepared landmarks (grids already checked).

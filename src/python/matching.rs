@@ -258,6 +258,23 @@ fn compare(
     Ok(PyPairResult { inner })
 }
 
+/// Many comparisons among `landmarks` (each prepared once), pairs in parallel, GIL released.
+#[pyfunction]
+fn compare_pairs(
+    py: Python<'_>,
+    landmarks: Vec<PyRef<'_, PyLandmark>>,
+    pairs: Vec<(usize, usize)>,
+    config_json: &str,
+) -> PyResult<Vec<PyPairResult>> {
+    let cfg = config_from_json(config_json)?;
+    let ls = landmarks_of(&landmarks);
+    let results = detached(py, move || matching::compare_pairs(&ls, &pairs, &cfg))?;
+    Ok(results
+        .into_iter()
+        .map(|inner| PyPairResult { inner })
+        .collect())
+}
+
 /// A landmark database (see `decod::matching::LandmarkDatabase`).
 #[pyclass(name = "LandmarkDatabase", module = "decod_rs._core")]
 pub(crate) struct PyLandmarkDatabase {
@@ -459,6 +476,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyQueryResult>()?;
     m.add_class::<PyLandmarkDatabase>()?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
+    m.add_function(wrap_pyfunction!(compare_pairs, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic_landmark, m)?)?;
     Ok(())
 }
