@@ -198,7 +198,7 @@ def test_table_rows_and_sections() -> None:
     line = format_row(_row())
     assert line.startswith("| hume-avia-reverse-s0 |  | symmetric | pipe | 1.50 | 5 | 2 / 3 | 2 |")
     assert "| 100 % | 50 % | 100 % | 40 % | 75 % (3/4) | 3.00 → 0.10 | 1.50 → 0.50 |" in line
-    assert "| -5.0 → -4.9 | 80 |" in line
+    assert "| -5.0 → -4.9 | - | 80 |" in line
     err = format_row({"cell": "x", "profile": UNEVEN, "status": "error", "error": "E: a|b"})
     assert err.endswith("| ERROR: E: a/b |") and err.count("|") == line.count("|")
     rows = [_row(), _row(cell="pe-avia-reverse-s0-j3", held_out=True, variant="joint spacing 3 m")]

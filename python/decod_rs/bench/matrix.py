@@ -405,7 +405,7 @@ def _pair(a: float | None, b: float | None, fmt: str = "{:.2f}") -> str:
 TABLE_HEADER = (
     "| cell | variant | drift | preset | lm/submap | queries | top-1 ok 0.3 m / coarse | accepted "
     "| P@1 0.3 m | R@1 0.3 m | P@1 coarse | R@1 coarse | coverage | endpoint m "
-    "| RMSE m | far-end axial % | x RT | note |"
+    "| RMSE m | far-end axial % | joint chainage err % (med / max, n) | x RT | note |"
 )
 
 
@@ -415,7 +415,7 @@ def format_row(r: dict[str, Any]) -> str:
     if r.get("status") != "ok":
         note = r.get("error") or r.get("reason") or r.get("status", "")
         label = "ERROR" if r.get("status") == "error" else "skipped"
-        return head + "| - " * 14 + f"| {label}: {_escape(str(note))} |"
+        return head + "| - " * 15 + f"| {label}: {_escape(str(note))} |"
     lps = r.get("landmarks_per_submap")
     cov = r.get("coverage")
     cov_text = "-" if cov is None else f"{_pct(cov)} ({r['joints_closed']}/{r['joints_seen_both']})"
@@ -433,10 +433,18 @@ def format_row(r: dict[str, Any]) -> str:
         _pair(r.get("odom_endpoint_m"), r.get("corr_endpoint_m")),
         _pair(r.get("odom_rmse_m"), r.get("corr_rmse_m")),
         _pair(r.get("turnaround_odom_percent"), r.get("turnaround_corr_percent"), "{:+.1f}"),
+        _chainage_text(r),
         "-" if r.get("realtime_factor") is None else f"{r['realtime_factor']:.0f}",
         _escape(r.get("reason") or ""),
     ]
     return head + "| " + " | ".join(cells) + " |"
+
+
+def _chainage_text(r: dict[str, Any]) -> str:
+    med, mx = r.get("chainage_error_median_percent"), r.get("chainage_error_max_percent")
+    if med is None or mx is None:
+        return "-"
+    return f"{med:.1f} / {mx:.1f} ({r.get('chainage_joints', 0)})"
 
 
 def _escape(text: str) -> str:
@@ -675,6 +683,32 @@ def trajectory_summary(result: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def registry_chainage_errors(run_dir: Path, meta: dict[str, Any]) -> list[float]:
+    """Per true joint with a loop-confirmed ``joints.csv`` row within 0.5 m + 5 % of its
+    chainage: the row's chainage error in percent of the true chainage (joints beyond the
+    first metre, where a percentage means something)."""
+    path = run_dir / "joints.csv"
+    if not path.exists():
+        return []
+    import csv
+
+    with path.open(encoding="utf-8") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("loop_confirmed") == "1"]
+    if not rows:
+        return []
+    registry = np.array([float(r["chainage_m"]) for r in rows])
+    start = float(meta["trajectory"]["x_start_m"])
+    errors = []
+    for x in np.asarray(meta["joints_x_m"], dtype=np.float64):
+        true = x - start
+        if true < 1.0:
+            continue
+        err = float(np.min(np.abs(registry - true)))
+        if err <= 0.5 + 0.05 * true:
+            errors.append(100.0 * err / true)
+    return errors
+
+
 def pass_summary(run_dir: Path, sim_dir: Path, result: dict[str, Any]) -> dict[str, Any]:
     """What ``evaluate_run`` does not give: landmarks per pass, joint coverage (module doc)
     and the far-end axial error before and after correction."""
@@ -704,7 +738,11 @@ def pass_summary(run_dir: Path, sim_dir: Path, result: dict[str, Any]) -> dict[s
     seen, closed, coverage = joint_coverage(
         np.asarray(meta["joints_x_m"], dtype=np.float64), out_x, ret_x, closed_x
     )
+    chain = registry_chainage_errors(run_dir, meta)
     return {
+        "chainage_error_median_percent": float(np.median(chain)) if chain else None,
+        "chainage_error_max_percent": float(np.max(chain)) if chain else None,
+        "chainage_joints": len(chain),
         "landmarks_outbound": int(out_x.size),
         "landmarks_return": int(ret_x.size),
         "joints_seen_both": seen,
