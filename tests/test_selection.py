@@ -184,6 +184,10 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
             )
         )
     fixed, est = rescale_odometry(t, odom, anchors, a_odom, seq, 0.01, 40.0)
+    # One pair is not evidence enough to rescale a pass.
+    same, few = rescale_odometry(t, odom, anchors, a_odom, seq[:1], 0.01, 40.0)
+    np.testing.assert_allclose(same, odom)
+    assert [p["rescaled"] for p in few.passes] == [False, False]
     before = np.abs(odom[:, 0, 3] - truth[:, 0, 3]).max()
     after = np.abs(fixed[:, 0, 3] - truth[:, 0, 3]).max()
     assert before > 1.9  # -2 m at the far end, +2 m at the end

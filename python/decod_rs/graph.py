@@ -154,14 +154,17 @@ def _check_cfg(cfg: Config) -> None:
         raise ValueError(f"graph.granularity: {cfg.granularity!r} is not one of {GRANULARITIES}")
 
 
-def odometry_sigmas(poses: FloatArray, cfg: Config) -> FloatArray:
+def odometry_sigmas(
+    poses: FloatArray, cfg: Config, factors: FloatArray | None = None
+) -> FloatArray:
     """(N-1, 6) GTSAM-ordered sigmas ``[rot (rad) x3, trans (m) x3]`` of the odometry edges
     between consecutive ``poses`` (N, 4, 4) (random-walk model, see the module doc)."""
     d = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
     root = np.sqrt(np.maximum(d, MIN_EDGE_LENGTH_M))
     rot = cfg.odom_rotation_sigma_per_m * root
     trans = cfg.odom_translation_sigma_per_m * root
-    return np.column_stack([rot, rot, rot, trans, trans, trans])
+    sig = np.column_stack([rot, rot, rot, trans, trans, trans])
+    return sig if factors is None else sig * np.asarray(factors, dtype=np.float64)[:, None]
 
 
 def loop_noise_sigmas(cfg: Config) -> FloatArray:
@@ -202,8 +205,13 @@ def _pose3_measurement(poses: FloatArray, lc: LoopConstraint) -> gtsam.Pose3:
     return gtsam.Pose3(m)
 
 
-def _add_odometry(graph: gtsam.NonlinearFactorGraph, p: FloatArray, cfg: Config) -> None:
-    sig = odometry_sigmas(p, cfg)
+def _add_odometry(
+    graph: gtsam.NonlinearFactorGraph,
+    p: FloatArray,
+    cfg: Config,
+    factors: FloatArray | None = None,
+) -> None:
+    sig = odometry_sigmas(p, cfg, factors)
     rel = _inverse(p[:-1]) @ p[1:]
     for k in range(p.shape[0] - 1):
         graph.add(
@@ -236,7 +244,10 @@ def _add_loops(
 
 
 def build_graph(
-    poses: ArrayLike, loops: Sequence[LoopConstraint], cfg: Config
+    poses: ArrayLike,
+    loops: Sequence[LoopConstraint],
+    cfg: Config,
+    sigma_factors: FloatArray | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The full factor graph and initial values (keys ``0..N-1`` = pose indices): a prior on
     pose 0, ``BetweenFactorPose3`` odometry edges, then one robust loop factor per loop (in
@@ -253,7 +264,7 @@ def build_graph(
             0, gtsam.Pose3(p[0]), gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)
         )
     )
-    _add_odometry(graph, p, cfg)
+    _add_odometry(graph, p, cfg, sigma_factors)
     _add_loops(graph, p, loops, cfg)
     return graph, values
 
@@ -284,14 +295,18 @@ def _adjoint(t: FloatArray) -> FloatArray:
 
 
 def _reduced_graph(
-    p: FloatArray, kept: NDArray[np.int64], loops: Sequence[LoopConstraint], cfg: Config
+    p: FloatArray,
+    kept: NDArray[np.int64],
+    loops: Sequence[LoopConstraint],
+    cfg: Config,
+    sigma_factors: FloatArray | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The graph on the ``kept`` poses only: the odometry between consecutive kept poses
     compounded into one edge whose covariance is the first-order sum of the edge covariances
     carried to the segment's end, ``sum_k Ad(X_k) S_k Ad(X_k)^T`` with ``X_k = T_end^-1
     T_{k+1}`` (noise is a right perturbation ``Z Exp(eps)``, as in GTSAM's between error):
     the exact marginal of the linearised chain, because no loop touches a dropped pose."""
-    sig = odometry_sigmas(p, cfg)
+    sig = odometry_sigmas(p, cfg, sigma_factors)
     edges = np.arange(p.shape[0] - 1)
     seg_end = kept[np.searchsorted(kept, edges, side="right")]
     x = _inverse(p[seg_end]) @ p[edges + 1]
@@ -321,7 +336,11 @@ def _reduced_graph(
 
 
 def _fill_chain(
-    p: FloatArray, kept: NDArray[np.int64], kept_opt: FloatArray, cfg: Config
+    p: FloatArray,
+    kept: NDArray[np.int64],
+    kept_opt: FloatArray,
+    cfg: Config,
+    sigma_factors: FloatArray | None = None,
 ) -> tuple[gtsam.Values, int]:
     """Every pose given the optimised ``kept`` ones: the odometry chain with the kept poses
     pinned (the dropped poses' exact conditional optimum; only C++ factors, so fast),
@@ -335,12 +354,27 @@ def _fill_chain(
     pin = gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)
     for n, k in enumerate(kept):
         graph.add(gtsam.PriorFactorPose3(int(k), gtsam.Pose3(kept_opt[n]), pin))
-    _add_odometry(graph, p, cfg)
+    _add_odometry(graph, p, cfg, sigma_factors)
     return _lm(graph, values, cfg)
 
 
+def _edge_factors(sigma_factors: ArrayLike | None, n: int) -> FloatArray | None:
+    """Per odometry edge (N-1,), the factor on its sigmas from per-pose factors (N,): the
+    larger of its two ends; None stays None."""
+    if sigma_factors is None:
+        return None
+    f = np.asarray(sigma_factors, dtype=np.float64)
+    if f.shape != (n,) or not np.all(np.isfinite(f) & (f > 0)):
+        raise ValueError(f"sigma_factors: expected ({n},) positive factors, got {f.shape}")
+    return np.maximum(f[:-1], f[1:])
+
+
 def optimize(
-    poses: ArrayLike, loops: Sequence[LoopConstraint], cfg: Config, reduce: bool = True
+    poses: ArrayLike,
+    loops: Sequence[LoopConstraint],
+    cfg: Config,
+    reduce: bool = True,
+    sigma_factors: ArrayLike | None = None,
 ) -> GraphResult:
     """Optimise ``poses`` (N, 4, 4) ``world_from_body`` odometry with ``loops`` (indices
     into ``poses``) under ``cfg`` (``load_config(...).graph``).
@@ -364,7 +398,8 @@ def optimize(
     if not loops:
         return GraphResult(poses=p.copy(), loop_factor=cfg.loop_factor)
     start = time.perf_counter()
-    graph, initial = build_graph(p, loops, cfg)
+    factors = _edge_factors(sigma_factors, p.shape[0])
+    graph, initial = build_graph(p, loops, cfg, factors)
     kept = np.unique(
         np.array(
             [0, p.shape[0] - 1] + [lc.query_index for lc in loops] + [lc.db_index for lc in loops],
@@ -372,10 +407,10 @@ def optimize(
         )
     )
     if reduce and kept.size < p.shape[0]:
-        small, small_init = _reduced_graph(p, kept, loops, cfg)
+        small, small_init = _reduced_graph(p, kept, loops, cfg, factors)
         small_values, iterations = _lm(small, small_init, cfg)
         kept_opt = np.stack([small_values.atPose3(n).matrix() for n in range(kept.size)])
-        values, _ = _fill_chain(p, kept, kept_opt, cfg)
+        values, _ = _fill_chain(p, kept, kept_opt, cfg, factors)
     else:
         values, iterations = _lm(graph, initial, cfg)
     out = np.stack([values.atPose3(k).matrix() for k in range(p.shape[0])])
@@ -510,6 +545,7 @@ def correct_trajectory(
     anchor_stamps: ArrayLike,
     loops: Sequence[LoopConstraint],
     cfg: Config,
+    sigma_factors: ArrayLike | None = None,
 ) -> CorrectionResult:
     """Optimise at ``cfg.granularity`` and give every scan a corrected pose.
 
@@ -518,6 +554,8 @@ def correct_trajectory(
     index into ``anchor_stamps`` with landmark geometry in the anchors' body frames.
     ``"submap"``: one node per anchor (odometry interpolated at the anchor stamps);
     ``"scan"``: one node per scan (each loop moved to the scan nearest its anchor).
+    ``sigma_factors`` (M,): a factor per scan on the odometry sigmas (an edge takes the
+    larger of its ends'), e.g. to trust a pass whose scale was not measured less.
     No loop: ``poses`` is ``scan_odom``, bit for bit.
     """
     _check_cfg(cfg)
@@ -539,6 +577,13 @@ def correct_trajectory(
         node_loops = _remap_loops(loops, a_st, a_odom, s_st, s_odom)
     else:
         node_st, node_odom, node_loops = a_st, a_odom, list(loops)
-    result = optimize(node_odom, node_loops, cfg)
+    node_factors = None
+    if sigma_factors is not None:
+        f = np.asarray(sigma_factors, dtype=np.float64)
+        if f.shape != s_st.shape:
+            raise ValueError(f"sigma_factors: expected one per scan {s_st.shape}, got {f.shape}")
+        nearest = np.clip(np.searchsorted(s_st, node_st), 0, s_st.size - 1)
+        node_factors = f[nearest]
+    result = optimize(node_odom, node_loops, cfg, sigma_factors=node_factors)
     poses = propagate_to_scans(s_st, s_odom, node_st, node_odom, result.poses)
     return CorrectionResult(poses=poses, node_stamps=node_st.copy(), graph=result)

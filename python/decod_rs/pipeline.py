@@ -33,7 +33,7 @@ from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.io import find_imu_topic
 from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
-from decod_rs.odometry_scale import ScaleEstimate, rescale_odometry
+from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
 from decod_rs.selection import effective_db_origin, select_loops, why_no_loop
@@ -330,7 +330,15 @@ def _optimise(
         start, scale = rescale_odometry(
             scans[0], scans[1], anchor_stamps, anchor_odom, seq.constraints, seq.sigma_m, split
         )
-    correction = correct_trajectory(scans[0], start, anchor_stamps, constraints, cfg.graph)
+    rescaled = scale is not None and any(p["rescaled"] for p in scale.passes)
+    if not rescaled and not any(c.kind == "loop" for c in constraints):
+        # Nothing measured the degenerate axis: the odometry stands (paper Alg. 1, "keep
+        # X* = X_odom if L is empty"); a few sequential factors alone only add noise.
+        constraints = []
+    factors = None if scale is None else odometry_sigma_factors(scans[0], scale, split)
+    correction = correct_trajectory(
+        scans[0], start, anchor_stamps, constraints, cfg.graph, sigma_factors=factors
+    )
     return correction, scale, start
 
 
