@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 from pathlib import Path
 
 from decod_rs.config import PRESETS
 from decod_rs.pipeline import MODES, RunSummary, run_log
+from decod_rs.recording import require_rerun
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -50,6 +53,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "paper's loops-only graph",
     )
     p.add_argument("--no-plots", action="store_true")
+    p.add_argument(
+        "--map",
+        action="store_true",
+        help="also write map_corrected.ply and map_odometry.ply (the submaps placed by the "
+        "corrected poses and by the odometry, cyan outbound / orange return) and "
+        "map_consistency.png: wall thickness where the passes overlap, before and after "
+        "(report.json 'map'; no ground truth needed)",
+    )
+    p.add_argument(
+        "--rerun",
+        type=Path,
+        metavar="FILE.rrd",
+        help="write a 3D recording for the rerun viewer: trajectories, maps, submaps, "
+        "boundaries, every query's Top-1 and verdict, descriptors of accepted pairs "
+        "(needs rerun-sdk: pip install 'decod-rs[rerun]')",
+    )
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=run)
 
@@ -70,6 +89,12 @@ def print_summary(summary: RunSummary) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.rerun is not None:
+        try:
+            require_rerun()
+        except ImportError as exc:
+            print(f"decod run: error: {exc}", file=sys.stderr)
+            return 2
     summary = run_log(
         args.log,
         args.out,
@@ -84,6 +109,24 @@ def run(args: argparse.Namespace) -> int:
         loops=not args.no_loops,
         sequential=False if args.no_sequential else None,
         plots=not args.no_plots,
+        map=args.map,
+        rerun=args.rerun,
     )
     print_summary(summary)
+    if args.map:
+        print_map(args.out)
     return 0
+
+
+def print_map(out: Path) -> None:
+    """The map files and the consistency figure (``report.json`` ``map``)."""
+    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["map"]
+    figure = section.get("consistency", {})
+    before = figure.get("odometry", {}).get("median_overlap_mm")
+    after = figure.get("corrected", {}).get("median_overlap_mm")
+    if before is None or after is None:
+        wall = "the passes do not overlap: no consistency figure"
+    else:
+        wall = f"wall where the passes overlap {before:.1f} mm (odometry) -> {after:.1f} mm"
+    points = sum(section["points"]["corrected"].values())
+    print(f"map            {points} points ({section['voxel_m'] * 1e3:.1f} mm voxels); {wall}")

@@ -1,0 +1,248 @@
+"""A 3D recording of a run for the rerun viewer (issue 13, ``decod run --rerun FILE.rrd``):
+what decod decided, where, and when, on one time line (``stamp``, the log's clock).
+
+Entities (in the corrected world frame unless named ``odometry``; static or at a stamp):
+
+- ``world/odometry/trajectory``, ``world/corrected/trajectory`` (static): the trajectory
+  before and after (red, blue, as in ``trajectory.png``);
+- ``world/odometry/map``, ``world/corrected/map`` (static): the maps (``decod_rs.maps``),
+  cyan outbound, orange return;
+- ``world/odometry/anchor``, ``world/corrected/anchor`` (each anchor stamp): the current
+  submap anchor and its heading;
+- ``world/corrected/submaps/NNNNN`` (its anchor stamp): the submap's corrected pose
+  (Transform3D), with children ``cloud`` (the voxels it saw first, anchor frame),
+  ``boundaries`` (each detected boundary as a ring of its fitted radius) and ``axes``;
+- ``world/queries`` (the query's stamp): each query's Top-1 candidate as a line from the
+  query boundary to it, green if accepted, red if rejected, labelled with K, score, reason;
+- ``log/queries`` (the query's stamp): the same as text, with the chance and the heading;
+- ``descriptors/query``, ``descriptors/candidate`` (the query's stamp): the unwrapped
+  descriptors of the best accepted pair (rows: axial bins, +z up; columns: arclength from
+  the gravity direction; grey: unobserved).
+
+rerun-sdk is optional (``pip install 'decod-rs[rerun]'``) and imported only here, only when
+a recording is asked for.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs._core import Landmark, QueryResult
+from decod_rs.maps import PASS_COLOURS, MapCloud, anchor_poses, pass_of
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["RERUN_MISSING", "RecordingInput", "require_rerun", "write_recording"]
+
+RERUN_MISSING = (
+    "the 3D recording (--rerun) needs the rerun SDK, which is not installed: "
+    "pip install 'decod-rs[rerun]' (or: pip install rerun-sdk)"
+)
+TIMELINE = "stamp"
+#: Line colours (RGB): odometry red, corrected blue (as in trajectory.png); accepted green,
+#: rejected red, no candidate grey.
+ODOMETRY_RGB = (214, 39, 40)
+CORRECTED_RGB = (31, 119, 180)
+ACCEPTED_RGB = (44, 160, 44)
+REJECTED_RGB = (214, 39, 40)
+#: Points per boundary ring.
+RING_POINTS = 48
+
+
+def require_rerun() -> ModuleType:
+    """The ``rerun`` module, or ImportError with ``RERUN_MISSING`` (what to install)."""
+    try:
+        return importlib.import_module("rerun")
+    except ImportError as exc:
+        raise ImportError(RERUN_MISSING) from exc
+
+
+@dataclass
+class RecordingInput:
+    """What a recording shows: the trajectories at ``scan_stamps`` (N,) (``odometry`` and
+    ``corrected`` (N, 4, 4) world_from_body), the maps, the submap clouds (``submap_points``
+    (M, 3) in each submap's anchor frame, ``submap_index`` (M,) into ``anchor_stamps`` (K,)),
+    the landmarks and every query's Top-1 with its verdict."""
+
+    scan_stamps: FloatArray
+    odometry: FloatArray
+    corrected: FloatArray
+    split_stamp: float | None
+    anchor_stamps: FloatArray
+    maps: dict[str, MapCloud]
+    submap_points: NDArray[np.float32]
+    submap_index: NDArray[np.uint32]
+    landmarks: Sequence[Landmark]
+    results: Sequence[QueryResult]
+    keep: Sequence[bool]
+    reasons: Sequence[str]
+
+
+def write_recording(path: str | Path, run: RecordingInput) -> dict[str, Any]:
+    """Write ``run`` as a rerun recording (``.rrd``, opened by ``rerun FILE``); returns what
+    it holds (entity counts) for the report."""
+    rr = require_rerun()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream("decod")
+    rec.save(str(out))
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    _log_static(rr, rec, run)
+    submaps = _log_submaps(rr, rec, run)
+    queries, pairs = _log_queries(rr, rec, run)
+    rec.flush()
+    rec.disconnect()
+    return {"file": str(out), "submaps": submaps, "queries": queries, "descriptor_pairs": pairs}
+
+
+def _log_static(rr: Any, rec: Any, run: RecordingInput) -> None:
+    for name, poses, rgb in (
+        ("odometry", run.odometry, ODOMETRY_RGB),
+        ("corrected", run.corrected, CORRECTED_RGB),
+    ):
+        rec.log(
+            f"world/{name}/trajectory",
+            rr.LineStrips3D([poses[:, :3, 3]], colors=[rgb], labels=[name]),
+            static=True,
+        )
+        cloud = run.maps.get(name)
+        if cloud is not None:
+            colours = PASS_COLOURS[np.minimum(cloud.pass_, len(PASS_COLOURS) - 1)]
+            rec.log(
+                f"world/{name}/map",
+                rr.Points3D(cloud.points.astype(np.float32), colors=colours),
+                static=True,
+            )
+
+
+def _set_time(rec: Any, stamp: float) -> None:
+    rec.set_time(TIMELINE, timestamp=float(stamp))
+
+
+def _ring(origin: FloatArray, axis: FloatArray, radius: float) -> FloatArray:
+    """(RING_POINTS + 1, 3) closed circle of ``radius`` about ``origin``, normal ``axis``."""
+    a = axis / max(float(np.linalg.norm(axis)), 1e-12)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(a, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(a, u)
+    t = np.linspace(0.0, 2 * np.pi, RING_POINTS + 1)
+    return origin + radius * (np.outer(np.cos(t), u) + np.outer(np.sin(t), v))
+
+
+def _log_submaps(rr: Any, rec: Any, run: RecordingInput) -> int:
+    """Each submap at its anchor stamp: pose, cloud, boundaries; the current anchors."""
+    poses = {
+        "odometry": anchor_poses(run.anchor_stamps, run.scan_stamps, run.odometry),
+        "corrected": anchor_poses(run.anchor_stamps, run.scan_stamps, run.corrected),
+    }
+    passes = pass_of(run.anchor_stamps, run.split_stamp)
+    bounds = np.searchsorted(run.submap_index, np.arange(run.anchor_stamps.size + 1))
+    by_stamp: dict[float, list[Landmark]] = {}
+    for lm in run.landmarks:
+        by_stamp.setdefault(lm.submap_stamp, []).append(lm)
+    for k, stamp in enumerate(run.anchor_stamps):
+        _set_time(rec, stamp)
+        for name, rgb in (("odometry", ODOMETRY_RGB), ("corrected", CORRECTED_RGB)):
+            pose = poses[name][k]
+            rec.log(
+                f"world/{name}/anchor",
+                rr.Arrows3D(origins=[pose[:3, 3]], vectors=[0.3 * pose[:3, 0]], colors=[rgb]),
+            )
+        base = f"world/corrected/submaps/{k:05d}"
+        pose = poses["corrected"][k]
+        rec.log(base, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+        cloud = run.submap_points[bounds[k] : bounds[k + 1]]
+        if cloud.shape[0]:
+            rec.log(f"{base}/cloud", rr.Points3D(cloud, colors=[PASS_COLOURS[passes[k]]]))
+        lms = by_stamp.get(float(stamp), [])
+        if lms:
+            rings = [_ring(np.asarray(lm.origin), np.asarray(lm.axis), lm.radius_m) for lm in lms]
+            labels = [f"boundary r={lm.radius_m:.3f} m" for lm in lms]
+            rec.log(f"{base}/boundaries", rr.LineStrips3D(rings, labels=labels))
+            rec.log(
+                f"{base}/axes",
+                rr.Arrows3D(
+                    origins=[lm.origin for lm in lms],
+                    vectors=[np.asarray(lm.axis) * lm.radius_m for lm in lms],
+                ),
+            )
+    return int(run.anchor_stamps.size)
+
+
+def _world_point(run: RecordingInput, stamp: float, local: FloatArray) -> FloatArray:
+    """A point of a submap's anchor frame (submap at ``stamp``) in the corrected world."""
+    pose = anchor_poses(np.array([stamp]), run.scan_stamps, run.corrected)[0]
+    return np.asarray(pose[:3, :3] @ np.asarray(local, dtype=np.float64) + pose[:3, 3])
+
+
+def _verdict(r: QueryResult, ok: bool, reason: str) -> str:
+    if r.candidate_index is None:
+        return f"query {r.query_stamp:.2f} s: no candidate ({reason or 'none eligible'})"
+    verdict = "ACCEPTED" if ok else f"rejected: {reason or 'unknown'}"
+    return (
+        f"query {r.query_stamp:.2f} s -> {r.candidate_stamp:.2f} s: K={r.inliers}, "
+        f"S={r.score:.2f}, chance={r.chance:.2g}, heading {r.heading_deg:.0f} deg, {verdict}"
+    )
+
+
+def _log_queries(rr: Any, rec: Any, run: RecordingInput) -> tuple[int, int]:
+    """Each query's Top-1 and verdict at the query's stamp; descriptors of accepted pairs."""
+    by_key = {(lm.submap_stamp, tuple(np.round(lm.origin, 6))): lm for lm in run.landmarks}
+    groups: dict[float, list[int]] = {}
+    for i, r in enumerate(run.results):
+        groups.setdefault(r.query_stamp, []).append(i)
+    pairs = 0
+    for stamp, idx in sorted(groups.items()):
+        _set_time(rec, stamp)
+        strips, colours, labels = [], [], []
+        for i in idx:
+            r, ok, why = run.results[i], bool(run.keep[i]), run.reasons[i]
+            rec.log("log/queries", rr.TextLog(_verdict(r, ok, why), level="INFO" if ok else "WARN"))
+            if r.candidate_index is None:
+                continue
+            a = _world_point(run, r.query_stamp, r.query_origin)
+            b = _world_point(run, r.candidate_stamp, r.candidate_origin)
+            strips.append(np.stack([a, b]))
+            colours.append(ACCEPTED_RGB if ok else REJECTED_RGB)
+            labels.append(f"K={r.inliers} S={r.score:.2f} " + ("accepted" if ok else why))
+        if strips:
+            rec.log("world/queries", rr.LineStrips3D(strips, colors=colours, labels=labels))
+        accepted = [run.results[i] for i in idx if run.keep[i]]
+        if accepted and _log_descriptors(rr, rec, max(accepted, key=lambda r: r.score), by_key):
+            pairs += 1
+    return len(run.results), pairs
+
+
+def _descriptor_rgb(values: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.uint8]:
+    """A (rows, cols) descriptor as an RGB image: blue-white-red over its own +-max offset,
+    unobserved cells grey, +z (row 0 of the descriptor is -z) at the top."""
+    from matplotlib import colormaps
+
+    observed = mask & np.isfinite(values)
+    lim = float(np.max(np.abs(values[observed]))) if np.any(observed) else 1.0
+    scaled = np.clip(0.5 + 0.5 * np.where(observed, values, 0.0) / (lim or 1.0), 0.0, 1.0)
+    rgb = (colormaps["RdBu_r"](scaled)[..., :3] * 255).astype(np.uint8)
+    rgb[~observed] = 153
+    return np.ascontiguousarray(rgb[::-1])
+
+
+def _log_descriptors(
+    rr: Any, rec: Any, r: QueryResult, by_key: dict[tuple[float, tuple[float, ...]], Landmark]
+) -> bool:
+    q = by_key.get((r.query_stamp, tuple(np.round(r.query_origin, 6))))
+    d = by_key.get((r.candidate_stamp, tuple(np.round(r.candidate_origin, 6))))
+    if q is None or d is None:
+        return False
+    for name, lm in (("query", q), ("candidate", d)):
+        image = _descriptor_rgb(np.asarray(lm.descriptor), np.asarray(lm.mask, dtype=bool))
+        rec.log(f"descriptors/{name}", rr.Image(image, magnification_filter="Nearest"))
+    return True

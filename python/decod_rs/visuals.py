@@ -1,0 +1,185 @@
+"""What ``decod run --map`` and ``--rerun FILE`` add once the contract's files are written
+(issue 13): the corrected and odometry maps as PLY, the map-consistency figure that needs no
+ground truth (``report.json`` ``map`` and ``map_consistency.png``), and the 3D recording.
+
+Files (``--map``):
+
+| file | content |
+| --- | --- |
+| ``map_corrected.ply`` | the submaps placed by the corrected poses, one point per voxel and pass |
+| ``map_odometry.ply`` | the same placed by the input odometry |
+| ``map_consistency.png`` | wall thickness where the passes overlap, per metre, before and after |
+
+``report.json`` gains ``map`` (voxel, memory, points per pass, the consistency figure before
+and after, per bin) and ``rerun`` (the recording's contents); ``timings_s`` gains the stages
+``map`` and ``rerun``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs import _core
+from decod_rs._core import Landmark, QueryResult
+from decod_rs.map_quality import Consistency, map_consistency, outbound_path
+from decod_rs.maps import PASS_NAMES, MapCloud, anchor_poses, render_map, write_map_ply
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["MAP_FILES", "write_visuals"]
+
+MAP_FILES = {"corrected": "map_corrected.ply", "odometry": "map_odometry.ply"}
+CONSISTENCY_PNG = "map_consistency.png"
+
+
+class Matched(Protocol):
+    """The matching stage's outcome as ``run_log`` holds it."""
+
+    results: list[QueryResult]
+    keep: list[bool]
+    reasons: list[str]
+    split: float | None
+
+
+def write_visuals(
+    out: Path,
+    processor: _core.LogProcessor,
+    scans: tuple[FloatArray, FloatArray],
+    corrected: FloatArray,
+    landmarks: Sequence[Landmark],
+    matched: Matched,
+    *,
+    map: bool,
+    rerun: str | Path | None,
+) -> dict[str, float]:
+    """Maps, figure and recording of a finished run in ``out`` (``scans``: stamps (N,) and
+    odometry (N, 4, 4); ``corrected`` (N, 4, 4)); updates ``report.json``; returns the time
+    per stage in seconds."""
+    stamps, odometry = scans
+    trajectories = {"odometry": odometry, "corrected": corrected}
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    clouds = {
+        name: render_map(processor, stamps, poses, matched.split)
+        for name, poses in trajectories.items()
+    }
+    section = _map_section(processor, clouds)
+    if map:
+        for name, cloud in clouds.items():
+            write_map_ply(out / MAP_FILES[name], cloud, float(stamps[0]), name)
+        section["files"] = dict(MAP_FILES)
+        figures = {
+            name: _consistency(processor, clouds[name], stamps, poses, matched.split)
+            for name, poses in trajectories.items()
+        }
+        section["consistency"] = _consistency_section(figures)
+        from decod_rs.plots import plot_map_consistency
+
+        plot_map_consistency(out / CONSISTENCY_PNG, figures)
+        section["files"]["consistency"] = CONSISTENCY_PNG
+    timings["map"] = time.perf_counter() - t0
+    recorded = None
+    if rerun is not None:
+        t0 = time.perf_counter()
+        recorded = _record(Path(rerun), processor, scans, corrected, clouds, landmarks, matched)
+        timings["rerun"] = time.perf_counter() - t0
+    _update_report(out / "report.json", section, recorded, timings)
+    return timings
+
+
+def _map_section(processor: _core.LogProcessor, clouds: dict[str, MapCloud]) -> dict[str, Any]:
+    return {
+        "voxel_m": processor.map_voxel_m,
+        "segment_length_m": processor.map_segment_length_m,
+        "segments": processor.map_segments,
+        "stored_voxels": processor.map_stored_voxels,
+        "points": {
+            name: {p: int(np.count_nonzero(c.pass_ == k)) for k, p in enumerate(PASS_NAMES)}
+            for name, c in clouds.items()
+        },
+    }
+
+
+def _consistency(
+    processor: _core.LogProcessor,
+    cloud: MapCloud,
+    stamps: FloatArray,
+    poses: FloatArray,
+    split: float | None,
+) -> Consistency:
+    anchors = np.asarray(processor.map_submap_stamps(), dtype=np.float64)
+    positions = anchor_poses(anchors, stamps, poses)[:, :3, 3]
+    return map_consistency(cloud, positions, outbound_path(stamps, poses, split))
+
+
+def _consistency_section(figures: dict[str, Consistency]) -> dict[str, Any]:
+    """Before (odometry) and after (corrected), with what the number means."""
+    section: dict[str, Any] = {
+        "what": "wall thickness where the outbound and return passes overlap: RMS of both "
+        "passes' radial residuals about their common cross-section, per metre of corridor "
+        "(the floors: each pass about its own section); lateral and angular misalignment "
+        "only, blind to the axial error of a uniform corridor",
+        "unit": "mm",
+    }
+    for name, fig in figures.items():
+        section[name] = fig.summary()
+    before = figures["odometry"].median_m()
+    after = figures["corrected"].median_m()
+    section["reduction_percent"] = (
+        None if before is None or after is None or before <= 0 else 100 * (1 - after / before)
+    )
+    return section
+
+
+def _record(
+    path: Path,
+    processor: _core.LogProcessor,
+    scans: tuple[FloatArray, FloatArray],
+    corrected: FloatArray,
+    clouds: dict[str, MapCloud],
+    landmarks: Sequence[Landmark],
+    matched: Matched,
+) -> dict[str, Any]:
+    from decod_rs.recording import RecordingInput, write_recording
+
+    points, index = processor.map_points_by_submap()
+    return write_recording(
+        path,
+        RecordingInput(
+            scan_stamps=scans[0],
+            odometry=scans[1],
+            corrected=corrected,
+            split_stamp=matched.split,
+            anchor_stamps=np.asarray(processor.map_submap_stamps(), dtype=np.float64),
+            maps=clouds,
+            submap_points=points,
+            submap_index=index,
+            landmarks=landmarks,
+            results=matched.results,
+            keep=matched.keep,
+            reasons=matched.reasons,
+        ),
+    )
+
+
+def _update_report(
+    path: Path,
+    section: dict[str, Any],
+    recorded: dict[str, Any] | None,
+    timings: dict[str, float],
+) -> None:
+    report = json.loads(path.read_text(encoding="utf-8"))
+    report["map"] = section
+    report["rerun"] = recorded
+    report.setdefault("timings_s", {}).update(timings)
+    total = sum(report["timings_s"].values())
+    if total > 0 and report.get("log_duration_s"):
+        report["realtime_factor"] = report["log_duration_s"] / total
+    path.write_text(json.dumps(report, indent=2), encoding="utf-8")
