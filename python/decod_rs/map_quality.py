@@ -39,9 +39,15 @@ __all__ = ["BIN_M", "Consistency", "map_consistency", "outbound_path", "point_ch
 
 #: Bin length along the corridor, metres (the issue's "per metre of corridor").
 BIN_M = 1.0
-#: Thin slices per bin for the centre line (8: >= 150 points per slice and pass in the 3 m
-#: tunnel at 0.11 m voxels, 3 000 in the 0.2 m pipes).
+#: Thin slices per bin for the centre line: 8, or fewer so that a slice spans at least
+#: ``SLICE_VOXELS`` map voxels (thinner slices hold partial rings whose circle fits wander: on
+#: the simulated shield tunnel at 0.165 m voxels, 8 slices per metre made one pass's wall
+#: 60-190 mm thick against 25 mm with whole rings).
 SLICES_PER_BIN = 8
+SLICE_VOXELS = 4
+#: Largest tilt of the centre line against the path (rad): the robot drives along the
+#: corridor, a steeper fit is a bad fit.
+MAX_TILT = 0.1
 #: Angular sectors of the cross-section profile (5 deg: 2.6 cm of arc in a 0.3 m pipe, 26 cm
 #: in a 3 m tunnel, where a horseshoe's radius changes by < 1 % within a sector).
 SECTORS = 72
@@ -159,9 +165,9 @@ def _basis(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _slice_centres(
-    xy: FloatArray, u: FloatArray, group: NDArray[np.int64], n: int
+    xy: FloatArray, u: FloatArray, group: NDArray[np.int64], n: int, slices: int
 ) -> tuple[FloatArray, FloatArray]:
-    """Per group, the least-squares line through the centres of ``SLICES_PER_BIN`` thin
+    """Per group, the least-squares line through the centres of ``slices`` thin
     slices along ``u`` (algebraic circle fits from batched moments): intercept (n, 2) and
     slope (n, 2) of the centre as a function of ``u``; zero where no slice has a fit."""
     u_min = np.full(n, np.inf)
@@ -169,11 +175,9 @@ def _slice_centres(
     np.minimum.at(u_min, group, u)
     np.maximum.at(u_max, group, u)
     span = np.maximum(u_max - u_min, 1e-9)[group]
-    sl = np.minimum(
-        ((u - u_min[group]) / span * SLICES_PER_BIN).astype(np.int64), SLICES_PER_BIN - 1
-    )
-    sid = group * SLICES_PER_BIN + sl
-    m = n * SLICES_PER_BIN
+    sl = np.minimum(((u - u_min[group]) / span * slices).astype(np.int64), slices - 1)
+    sid = group * slices + sl
+    m = n * slices
     x, y = xy[:, 0], xy[:, 1]
     b = x * x + y * y
     mom = [
@@ -195,7 +199,7 @@ def _slice_centres(
     sol[ok] = np.linalg.solve(a[ok], np.stack([mom[5], mom[6], mom[7]], 1)[ok][..., None])[..., 0]
     centre = sol[:, :2] / 2.0
     us = np.bincount(sid, weights=u, minlength=m) / np.maximum(count, 1.0)
-    g = np.repeat(np.arange(n), SLICES_PER_BIN)
+    g = np.repeat(np.arange(n), slices)
     w = ok.astype(np.float64)
     s1 = np.bincount(g, weights=w, minlength=n)
     su = np.bincount(g, weights=w * us, minlength=n)
@@ -208,6 +212,7 @@ def _slice_centres(
     line = (s1 >= 2) & (den > 1e-12 * np.maximum(s1 * suu, 1e-30))
     slope = np.zeros((n, 2))
     slope[line] = (s1[line, None] * suc[line] - su[line, None] * sc[line]) / den[line, None]
+    slope = np.clip(slope, -MAX_TILT, MAX_TILT)
     intercept = np.where(
         s1[:, None] > 0, (sc - slope * su[:, None]) / np.maximum(s1, 1.0)[:, None], 0.0
     )
@@ -228,27 +233,27 @@ def _frame(
 
 
 def _transverse(
-    points: FloatArray, group: NDArray[np.int64], axis: FloatArray, n: int
+    points: FloatArray, group: NDArray[np.int64], axis: FloatArray, n: int, slices: int
 ) -> FloatArray:
     """Coordinates (N, 2) of each point about its group's fitted centre line: the axis
     (n, 3) is tilted onto the slice centres' line and the fit repeated in that frame."""
     origin = _group_mean(points, group, n)
     e1, e2, u, xy = _frame(points, group, axis, origin)
-    intercept, slope = _slice_centres(xy, u, group, n)
+    intercept, slope = _slice_centres(xy, u, group, n, slices)
     tilted = axis + slope[:, :1] * e1 + slope[:, 1:] * e2
     axis = tilted / np.linalg.norm(tilted, axis=1, keepdims=True)
     origin = origin + intercept[:, :1] * e1 + intercept[:, 1:] * e2
     _, _, u, xy = _frame(points, group, axis, origin)
-    intercept, slope = _slice_centres(xy, u, group, n)
+    intercept, slope = _slice_centres(xy, u, group, n, slices)
     return np.asarray(xy - intercept[group] - slope[group] * u[:, None], dtype=np.float64)
 
 
 def _thickness(
-    points: FloatArray, group: NDArray[np.int64], axis: FloatArray, n: int
+    points: FloatArray, group: NDArray[np.int64], axis: FloatArray, n: int, slices: int
 ) -> FloatArray:
     """RMS radial residual (n,) of each group's points about the group's own cross-section
     profile (median radius per sector about its centre line); NaN for empty groups."""
-    xy = _transverse(points, group, axis, n)
+    xy = _transverse(points, group, axis, n, slices)
     rho = np.hypot(xy[:, 0], xy[:, 1])
     sector = ((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / (2 * np.pi) * SECTORS).astype(np.int64)
     sid = group * SECTORS + np.clip(sector, 0, SECTORS - 1)
@@ -283,10 +288,15 @@ def map_consistency(
     cloud: MapCloud,
     anchor_positions: FloatArray,
     path: FloatArray,
+    voxel_m: float | None = None,
 ) -> Consistency:
     """Wall thickness per ``BIN_M`` of chainage along ``path`` (the map's outbound positions,
     P x 3) where both passes of ``cloud`` reach, and each pass's own floor (module doc).
-    ``anchor_positions`` (K, 3): the submap anchors in the same trajectory."""
+    ``anchor_positions`` (K, 3): the submap anchors in the same trajectory; ``voxel_m``: the
+    map's voxel (sets the slices per bin, ``SLICE_VOXELS``; None: ``SLICES_PER_BIN``)."""
+    slices = SLICES_PER_BIN
+    if voxel_m is not None and voxel_m > 0:
+        slices = int(np.clip(BIN_M // (SLICE_VOXELS * voxel_m), 1, SLICES_PER_BIN))
     empty = np.zeros(0)
     points = {name: int(np.count_nonzero(cloud.pass_ == p)) for name, p in PASSES.items()}
     if cloud.points.shape[0] == 0 or path.shape[0] < 2:
@@ -304,8 +314,9 @@ def map_consistency(
     axis = _group_mean(tangent[keep], b, n)
     norm = np.linalg.norm(axis, axis=1, keepdims=True)
     axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-12), [1.0, 0.0, 0.0])
-    overlap = _thickness(pts, b, axis, n)
-    per_pass = _thickness(pts, b * 2 + ret, np.repeat(axis, 2, axis=0), 2 * n).reshape(n, 2)
+    overlap = _thickness(pts, b, axis, n, slices)
+    axes = np.repeat(axis, 2, axis=0)
+    per_pass = _thickness(pts, b * 2 + ret, axes, 2 * n, slices).reshape(n, 2)
     nan = np.where(usable, 0.0, np.nan)
     return Consistency(
         chainage_m=lo + BIN_M * (np.arange(n) + 0.5),

@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import FuncFormatter, NullFormatter
 from numpy.typing import ArrayLike, NDArray
 
 from decod_rs.map_quality import Consistency
@@ -247,6 +248,9 @@ def plot_map_consistency(path: str | Path, figures: Mapping[str, Consistency]) -
     finite = finite[finite > 0]
     if finite.size and finite.max() / finite.min() > 20:
         ax.set_yscale("log")
+        # Plain numbers, not mathtext powers (whose parser costs more than the figure).
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("chainage along the outbound path [m]")
     ax.set_ylabel("wall thickness (RMS about the section) [mm]")
     ax.set_title("map consistency without ground truth: the wall where the passes overlap")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -66,19 +67,27 @@ def write_visuals(
     trajectories = {"odometry": odometry, "corrected": corrected}
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+
+    # The renders one after the other (each is parallel in Rust and holds the processor's
+    # lock), then the PLY files and the figures of both maps at once (numpy's large-array
+    # work releases the GIL).
     clouds = {
         name: render_map(processor, stamps, poses, matched.split)
         for name, poses in trajectories.items()
     }
     section = _map_section(processor, clouds)
     if map:
-        for name, cloud in clouds.items():
-            write_map_ply(out / MAP_FILES[name], cloud, float(stamps[0]), name)
+        anchors = np.asarray(processor.map_submap_stamps(), dtype=np.float64)
+        voxel = processor.map_voxel_m
+
+        def finish(name: str) -> Consistency:
+            write_map_ply(out / MAP_FILES[name], clouds[name], float(stamps[0]), name)
+            poses = trajectories[name]
+            return _consistency(anchors, clouds[name], stamps, poses, matched.split, voxel)
+
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            figures = dict(zip(trajectories, pool.map(finish, trajectories), strict=True))
         section["files"] = dict(MAP_FILES)
-        figures = {
-            name: _consistency(processor, clouds[name], stamps, poses, matched.split)
-            for name, poses in trajectories.items()
-        }
         section["consistency"] = _consistency_section(figures)
         from decod_rs.plots import plot_map_consistency
 
@@ -108,15 +117,16 @@ def _map_section(processor: _core.LogProcessor, clouds: dict[str, MapCloud]) -> 
 
 
 def _consistency(
-    processor: _core.LogProcessor,
+    anchors: FloatArray,
     cloud: MapCloud,
     stamps: FloatArray,
     poses: FloatArray,
     split: float | None,
+    voxel_m: float | None,
 ) -> Consistency:
-    anchors = np.asarray(processor.map_submap_stamps(), dtype=np.float64)
+    """The figure of one map; ``anchors``: the map's submap stamps (K,)."""
     positions = anchor_poses(anchors, stamps, poses)[:, :3, 3]
-    return map_consistency(cloud, positions, outbound_path(stamps, poses, split))
+    return map_consistency(cloud, positions, outbound_path(stamps, poses, split), voxel_m)
 
 
 def _consistency_section(figures: dict[str, Consistency]) -> dict[str, Any]:
