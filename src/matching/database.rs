@@ -333,16 +333,7 @@ fn chance_of(
     n: usize,
     cfg: &MatchingConfig,
 ) -> f64 {
-    let p = null_model::pair_p_value(
-        &q.keypoints,
-        &c.keypoints,
-        pair.heading,
-        q.grid(),
-        pair.matches,
-        pair.inliers,
-        cfg,
-    );
-    null_model::family_wise(p, n)
+    null_model::family_wise(super::pair_chance(q, c, pair, cfg), n)
 }
 
 /// The rejection of the best pair under the configured acceptance rule, if any.

@@ -279,17 +279,27 @@ fn compare_with_chance(
     let side = QuerySide::new(q, shape);
     let mut pair = compare_prepared(q, &side, c, cfg, shape);
     if cfg.verification {
-        pair.chance = null_model::pair_p_value(
-            &q.keypoints,
-            &c.keypoints,
-            pair.heading,
-            q.grid(),
-            pair.matches,
-            pair.inliers,
-            cfg,
-        );
+        pair.chance = pair_chance(q, c, &pair, cfg);
     }
     pair
+}
+
+/// The null model's chance for `pair` of prepared landmarks ([`null_model::pair_p_value`]).
+pub(crate) fn pair_chance(
+    q: &PreparedLandmark,
+    c: &PreparedLandmark,
+    pair: &PairResult,
+    cfg: &MatchingConfig,
+) -> f64 {
+    null_model::pair_p_value(
+        &q.keypoints,
+        &c.keypoints,
+        pair.heading,
+        q.grid(),
+        pair.matches,
+        pair.inliers,
+        cfg,
+    )
 }
 
 /// The pairwise part on prepared landmarks (grids already checked).
