@@ -38,18 +38,19 @@ use crate::geometry::Pose;
 /// by < 0.1 mm.
 pub const MAP_VOXEL_FACTOR: f64 = 3.0;
 
-/// Segment length as a multiple of the submap reach (`submap.max_range_m`). Memory is
-/// `(L + 2 R) / L` times the map (2x here, measured 1.9-2.1x on the simulated pipes); the
-/// segment that holds the turnaround mixes at most `R` of each pass, where the two passes'
-/// odometry still agree.
+/// Segment length as a multiple of the submap reach (`submap.max_range_m`). Memory is at
+/// most `(L + 2 R) / L` = 2 times the map; measured: the voxels held are 1.5-1.6 times the
+/// rendered map's points (both passes) on the simulated hume, pe and shield runs of
+/// `python -m decod_rs.bench.visuals`. The segment that holds the turnaround mixes at most
+/// `R` of each pass, where the two passes' odometry still agree.
 pub const SEGMENT_REACH_FACTOR: f64 = 2.0;
 
 /// Every `POINT_STRIDE`-th point of a submap goes into the map. A map voxel holds ~9 submap
 /// points of each submap that sees it (3 x 3 on the surface) and each wall voxel is seen by
-/// several submaps, so every second point still reaches every voxel; it halves the map's
-/// share of the stream (2.8 M points on the 15 m hume pipe: +12 % of the stream's time at
-/// stride 1, +6 % at 2).
-pub const POINT_STRIDE: usize = 2;
+/// several submaps, so every fourth point still reaches every voxel (unit-tested on a dense
+/// wall); streaming with the map costs +13-16 % of the stream's time at stride 2 (best of 5,
+/// `python -m decod_rs.bench.visuals`), about half that at 4.
+pub const POINT_STRIDE: usize = 4;
 
 /// One stored voxel, in its segment's reference frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -586,7 +587,7 @@ mod tests {
     #[test]
     fn the_run_map_reaches_every_voxel_of_a_dense_wall() {
         // A wall sampled at the submap voxel (5.5 mm) over 1 m x 0.5 m: every map voxel
-        // (3 x 5.5 mm) gets points although only every second point is added.
+        // (3 x 5.5 mm) gets points although only every `POINT_STRIDE`-th point is added.
         let mut map = SegmentMap::for_submaps(0.0055, 3.0).unwrap();
         let wall: Vec<[f32; 3]> = (0..180)
             .flat_map(|i| (0..90).map(move |j| [i as f32 * 0.0055, 1.0, j as f32 * 0.0055]))
@@ -598,7 +599,10 @@ mod tests {
         let columns = (180.0 * 0.0055 / map.voxel_m()).ceil() as usize;
         let rows = (90.0 * 0.0055 / map.voxel_m()).ceil() as usize;
         assert_eq!(cloud.points.len(), columns * rows);
-        assert_eq!(cloud.count.iter().sum::<u32>() as usize, wall.len() / 2);
+        assert_eq!(
+            cloud.count.iter().sum::<u32>() as usize,
+            wall.len() / POINT_STRIDE
+        );
     }
 
     #[test]
