@@ -13,6 +13,7 @@ before any work is done.
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -158,6 +159,16 @@ def test_the_recording_holds_every_decision(run: Path) -> None:
     assert positions == len(_vertices(run / "map_corrected.ply"))
     assert report["rerun"]["queries"] == report["counts"]["queries"]
     assert report["rerun"]["descriptor_pairs"] >= 1
+    # The viewer's own loader accepts the file (`rerun rrd verify`, the CLI in the wheel).
+    check = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "verify", str(run / "run.rrd")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert check.returncode == 0, check.stderr
+    assert "verified without error" in check.stdout + check.stderr
 
 
 def test_a_missing_rerun_sdk_is_a_clear_error_before_any_work(
