@@ -93,6 +93,7 @@ def _extract(
     odom_tum: Path | None,
     imu_topic: str | None,
     progress: bool,
+    keep_map: bool = False,
 ) -> tuple[_core.LogProcessor, _Extracted]:
     processor = _core.LogProcessor(
         str(log),
@@ -101,6 +102,7 @@ def _extract(
         odom_topic=odom_topic,
         odom_tum=None if odom_tum is None else str(odom_tum),
         imu_topic=imu_topic,
+        map=keep_map,
     )
     bar = Progress("extract", processor.total_scans_hint or None, enabled=progress)
     out = _Extracted()
@@ -436,7 +438,8 @@ def run_log(
     timings["configure"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    processor, ex = _extract(log, cfg, *topics, progress)
+    # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
+    processor, ex = _extract(log, cfg, *topics, progress, keep_map=map or rerun is not None)
     timings["extract"] = time.perf_counter() - t0
     scans = (
         np.asarray(processor.scan_stamps(), dtype=np.float64),
