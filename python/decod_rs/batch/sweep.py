@@ -286,8 +286,8 @@ def pool_setting(setting: Setting, rows: list[dict[str, Any]]) -> dict[str, Any]
 
 
 def plot_pr(path: Path, rows: list[dict[str, Any]]) -> Path | None:
-    """Precision@1 against Recall@1, a point per setting (labelled by its id), one series
-    per tolerance; None when no setting was evaluated."""
+    """Precision@1 against Recall@1, a point per setting (the fine series labelled by the
+    setting ids), one series per tolerance; None when no setting was evaluated."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -306,7 +306,7 @@ def plot_pr(path: Path, rows: list[dict[str, Any]]) -> Path | None:
         pts = sorted(pts, key=lambda r: r[f"recall_{tol}"])
         xs, ys = [r[f"recall_{tol}"] for r in pts], [r[f"precision_{tol}"] for r in pts]
         ax.plot(xs, ys, "o-", ms=4, label=f"{tol} tolerance")
-        for r, x, y in zip(pts, xs, ys, strict=True):
+        for r, x, y in zip(pts, xs, ys, strict=True) if tol == "fine" else ():
             ax.annotate(r["setting"], (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.set_xlim(0.0, 1.02)
     ax.set_ylim(0.0, 1.02)
