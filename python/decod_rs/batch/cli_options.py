@@ -2,7 +2,8 @@
 manifest, ``decod run``'s options (applied to every log), the output and the engine.
 
 ``--odom-tum`` is not among them: a TUM file belongs to one log, so it goes into the
-manifest (``odom_tum`` in that log's ``[[log]]``).
+manifest (``odom_tum`` in that log's ``[[log]]``); nor is ``--rerun FILE.rrd``, a viewer's
+recording of one run (``decod run`` it on the log you want to look at).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-loops", action="store_true", help="report matches, add no factor")
     g.add_argument("--no-sequential", action="store_true", help="graph.sequential = false")
     g.add_argument("--no-plots", action="store_true", help="no PNG per run (faster)")
+    g.add_argument("--map", action="store_true", help="PLY maps and map_consistency.png per run")
 
 
 def _add_engine_options(p: argparse.ArgumentParser) -> None:
@@ -81,6 +83,7 @@ def run_options(args: argparse.Namespace) -> RunOptions:
         loops=not args.no_loops,
         sequential=False if args.no_sequential else None,
         plots=not args.no_plots,
+        map=args.map,
     )
 
 

@@ -40,6 +40,7 @@ class RunOptions:
     loops: bool = True
     sequential: bool | None = None
     plots: bool = True
+    map: bool = False
 
     def run_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :func:`decod_rs.pipeline.run_log` (progress bars off)."""

@@ -20,7 +20,7 @@ A manifest is read, never executed. Format version 1 (``version = 1`` is require
 
 Option keys (in ``[defaults]`` and ``[[log]]``) are ``decod run``'s: ``preset``, ``config``,
 ``points_topic``, ``odom_topic``, ``odom_tum``, ``imu_topic``, ``use_imu``, ``mode``,
-``loops``, ``sequential``, ``plots``. A log's own keys beat ``[defaults]``, which beat the
+``loops``, ``sequential``, ``plots``, ``map``. A log's own keys beat ``[defaults]``, which beat the
 command line. An unknown key, a wrong type or a size beyond the limits below is a
 :class:`ManifestError` naming the file and the key.
 """
@@ -59,6 +59,7 @@ OPTION_KINDS: dict[str, str] = {
     "loops": "bool",
     "sequential": "bool",
     "plots": "bool",
+    "map": "bool",
 }
 LOG_KINDS: dict[str, str] = {
     "path": "path",

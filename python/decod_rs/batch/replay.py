@@ -31,6 +31,7 @@ from decod_rs.pipeline import (
     _Extracted,
     _factors,
     _match_and_select,
+    _Matched,
     _optimise,
     _plots,
     _report,
@@ -80,7 +81,7 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
     cfg = apply_params(base, params) if params else base
     configure_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    processor, extracted = _extract(log, cfg, *topics, False)
+    processor, extracted = _extract(log, cfg, *topics, False, keep_map=options.map)
     extract_s = time.perf_counter() - t0
     scans = (
         np.asarray(processor.scan_stamps(), dtype=np.float64),
@@ -91,6 +92,25 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
     timings = {"configure": configure_s, "extract": extract_s}
     return Extraction(
         log, options, processor, extracted, scans, base, cfg, auto, imu_topic, timings
+    )
+
+
+def _summary(
+    extraction: Extraction, out_dir: Path, matched: _Matched, timings: dict[str, float]
+) -> RunSummary:
+    ex, stamps = extraction.extracted, extraction.scans[0]
+    return RunSummary(
+        out_dir=out_dir,
+        scans=int(stamps.size),
+        submaps=len(ex.anchor_stamps),
+        landmarks=len(ex.landmarks),
+        queries=len(matched.results),
+        accepted=int(sum(matched.keep)),
+        mode=matched.mode,
+        split_stamp=matched.split,
+        log_duration_s=float(stamps[-1] - stamps[0]),
+        timings_s=timings,
+        rejections=ex.rejections,
     )
 
 
@@ -128,19 +148,7 @@ def run_from_extraction(
         kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
         _plots(out_dir, *scans, correction.poses, kept, ex.landmarks)
         timings["plots"] = time.perf_counter() - t0
-    summary = RunSummary(
-        out_dir=out_dir,
-        scans=int(scans[0].size),
-        submaps=len(ex.anchor_stamps),
-        landmarks=len(ex.landmarks),
-        queries=len(matched.results),
-        accepted=int(sum(matched.keep)),
-        mode=matched.mode,
-        split_stamp=matched.split,
-        log_duration_s=float(scans[0][-1] - scans[0][0]),
-        timings_s=timings,
-        rejections=ex.rejections,
-    )
+    summary = _summary(extraction, out_dir, matched, timings)
     report = _report(
         summary,
         extraction.log,
@@ -163,6 +171,20 @@ def run_from_extraction(
         report["sequential"]["odometry_scale"] = scale.passes
     report.update(report_extra or {})
     (out_dir / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
+    if opts.map:
+        from decod_rs.visuals import write_visuals
+
+        maps = write_visuals(
+            out_dir,
+            extraction.processor,
+            scans,
+            correction.poses,
+            ex.landmarks,
+            matched,
+            map=True,
+            rerun=None,
+        )
+        summary.timings_s.update(maps)
     return summary
 
 
