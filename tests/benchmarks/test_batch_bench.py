@@ -1,5 +1,6 @@
 """Wall time of ``decod batch`` on N logs against N sequential ``run_log`` calls
-(pytest-benchmark; ``make bench`` only: skipped when benchmarks are disabled).
+(pytest-benchmark; ``make bench`` only: not collected when benchmarks are disabled, see
+``conftest.py``).
 
 The logs: N = 4 simulated hume pipes (seeds 0-3, 60 m out and back as in the README's
 table, pipe preset, no plots; about 5 s each on two cores). The batch runs on the default
@@ -26,15 +27,8 @@ LENGTH_M = 60.0
 OPTIONS = RunOptions(preset="pipe", imu_topic="/imu", plots=False)
 
 
-def _benchmarks_disabled(config: pytest.Config) -> bool:
-    # pytest-benchmark's own rule (session.py): --benchmark-enable beats the addopts' disable.
-    return bool(config.getoption("benchmark_disable")) and not config.getoption("benchmark_enable")
-
-
 @pytest.fixture(scope="module")
-def logs(tmp_path_factory: pytest.TempPathFactory, pytestconfig: pytest.Config) -> list[Path]:
-    if _benchmarks_disabled(pytestconfig):
-        pytest.skip("wall-time benchmark: run by `make bench`")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     root = tmp_path_factory.mktemp("bench_logs")
     for seed in range(N_LOGS):
         simulate("hume", root / f"s{seed}", seed=seed, length_m=LENGTH_M, progress=False)
