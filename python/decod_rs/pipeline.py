@@ -51,7 +51,7 @@ PRESET_CHOICES = ("auto", "tunnel", "pipe")
 #: landmark queries all older ones (online).
 MIN_RETURN_FRACTION = 0.25
 
-__all__ = ["MODES", "RunSummary", "run_log"]
+__all__ = ["MODES", "Extracted", "RunSummary", "Visuals", "finish_run", "run_log"]
 
 
 @dataclass
@@ -448,6 +448,47 @@ def run_log(
     if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
 
+    head = {"preset": preset, "auto": auto, "imu_topic": imu_topic}
+    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
+    return finish_run(
+        Extracted(log, processor, ex, scans), out, cfg, mode, loops, plots, timings, head, visuals
+    )
+
+
+@dataclass(frozen=True)
+class Extracted:
+    """Stage 1's result, what stages 2-5 need: the log, the processor that streamed it (its
+    voxel map, its skip lists), the landmarks and anchors, and the scan odometry."""
+
+    log: Path
+    processor: _core.LogProcessor
+    extracted: _Extracted
+    scans: tuple[FloatArray, FloatArray]
+
+
+@dataclass(frozen=True)
+class Visuals:
+    """What to draw after the run: the PLY maps and their figure, a rerun recording."""
+
+    map: bool = False
+    rerun: Path | None = None
+
+
+def finish_run(
+    extraction: Extracted,
+    out: Path,
+    cfg: Config,
+    mode: str,
+    loops: bool,
+    plots: bool,
+    timings: dict[str, float],
+    report_head: dict[str, Any],
+    visuals: Visuals,
+) -> RunSummary:
+    """Stages 2-5 of Algorithm 1 on an extraction: match -> select -> optimise -> write
+    (report.json last, with ``report_head`` merged in). ``decod run`` and ``decod sweep``
+    (which replays one extraction under several matching/graph settings) share it."""
+    ex, scans, processor = extraction.extracted, extraction.scans, extraction.processor
     t0 = time.perf_counter()
     matched = _match_and_select(ex, cfg, mode, *scans)
     timings["match"] = time.perf_counter() - t0
@@ -480,18 +521,26 @@ def run_log(
         rejections=ex.rejections,
     )
     report = _report(
-        summary, log, ex, processor, cfg, matched, constraints, correction, seq, joints
+        summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
-    report.update(preset=preset, auto=auto, imu_topic=imu_topic, loops_enabled=loops)
+    report.update(loops_enabled=loops)
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
+    report.update(report_head)
     (out / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
-    if map or rerun is not None:
+    if visuals.map or visuals.rerun is not None:
         from decod_rs.visuals import write_visuals
 
         summary.timings_s.update(
             write_visuals(
-                out, processor, scans, correction.poses, ex.landmarks, matched, map=map, rerun=rerun
+                out,
+                processor,
+                scans,
+                correction.poses,
+                ex.landmarks,
+                matched,
+                map=visuals.map,
+                rerun=visuals.rerun,
             )
         )
     return summary

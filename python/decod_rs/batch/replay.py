@@ -9,7 +9,6 @@ setting writes the files a ``decod run --config`` at that setting writes.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,17 +24,13 @@ from decod_rs.config import Config
 from decod_rs.io import find_imu_topic
 from decod_rs.pipeline import (
     MODES,
+    Extracted,
     RunSummary,
+    Visuals,
     _configure,
     _extract,
     _Extracted,
-    _factors,
-    _match_and_select,
-    _Matched,
-    _optimise,
-    _plots,
-    _report,
-    _write,
+    finish_run,
 )
 
 FloatArray = NDArray[np.float64]
@@ -95,25 +90,6 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
     )
 
 
-def _summary(
-    extraction: Extraction, out_dir: Path, matched: _Matched, timings: dict[str, float]
-) -> RunSummary:
-    ex, stamps = extraction.extracted, extraction.scans[0]
-    return RunSummary(
-        out_dir=out_dir,
-        scans=int(stamps.size),
-        submaps=len(ex.anchor_stamps),
-        landmarks=len(ex.landmarks),
-        queries=len(matched.results),
-        accepted=int(sum(matched.keep)),
-        mode=matched.mode,
-        split_stamp=matched.split,
-        log_duration_s=float(stamps[-1] - stamps[0]),
-        timings_s=timings,
-        rejections=ex.rejections,
-    )
-
-
 def run_from_extraction(
     extraction: Extraction,
     out_dir: Path,
@@ -128,64 +104,27 @@ def run_from_extraction(
             f"run_from_extraction: the config changes extraction parameters; only "
             f"{', '.join(REPLAYED_SECTIONS)} may differ from the extraction's"
         )
-    opts, ex, scans = extraction.options, extraction.extracted, extraction.scans
+    opts = extraction.options
     if opts.mode not in MODES:
         raise ValueError(f"mode: {opts.mode!r} is not one of {MODES}")
     out_dir.mkdir(parents=True, exist_ok=True)
-    timings = dict(extraction.timings_s)
-    t0 = time.perf_counter()
-    matched = _match_and_select(ex, cfg, opts.mode, *scans)
-    timings["match"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    constraints, seq = _factors(ex, matched, cfg, scans) if opts.loops else ([], None)
-    correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
-    timings["optimise"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    joints = _write(out_dir, ex, matched, (scans, start), correction, constraints, cfg)
-    timings["write"] = time.perf_counter() - t0
-    if opts.plots:
-        t0 = time.perf_counter()
-        kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
-        _plots(out_dir, *scans, correction.poses, kept, ex.landmarks)
-        timings["plots"] = time.perf_counter() - t0
-    summary = _summary(extraction, out_dir, matched, timings)
-    report = _report(
-        summary,
-        extraction.log,
-        ex,
-        extraction.processor,
+    head = {
+        "preset": opts.preset,
+        "auto": extraction.auto,
+        "imu_topic": extraction.imu_topic,
+        **(report_extra or {}),
+    }
+    return finish_run(
+        Extracted(extraction.log, extraction.processor, extraction.extracted, extraction.scans),
+        out_dir,
         cfg,
-        matched,
-        constraints,
-        correction,
-        seq,
-        joints,
+        opts.mode,
+        opts.loops,
+        opts.plots,
+        dict(extraction.timings_s),
+        head,
+        Visuals(map=opts.map),
     )
-    report.update(
-        preset=opts.preset,
-        auto=extraction.auto,
-        imu_topic=extraction.imu_topic,
-        loops_enabled=opts.loops,
-    )
-    if scale is not None and report["sequential"] is not None:
-        report["sequential"]["odometry_scale"] = scale.passes
-    report.update(report_extra or {})
-    (out_dir / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
-    if opts.map:
-        from decod_rs.visuals import write_visuals
-
-        maps = write_visuals(
-            out_dir,
-            extraction.processor,
-            scans,
-            correction.poses,
-            ex.landmarks,
-            matched,
-            map=True,
-            rerun=None,
-        )
-        summary.timings_s.update(maps)
-    return summary
 
 
 def replay_params(extraction: Extraction, params: dict[str, Any]) -> Config:
