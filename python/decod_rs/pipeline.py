@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import platform
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +35,7 @@ from decod_rs.matching import LandmarkDatabase
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
-from decod_rs.selection import effective_db_origin, select_loops, why_no_loop
+from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
@@ -290,12 +289,6 @@ def _match_and_select(
     return _Matched(split, tracks, results, used_mode, db_size, keep, reasons)
 
 
-def _path_at(scan_stamps: FloatArray, scan_odom: FloatArray) -> Callable[[float], float]:
-    steps = np.linalg.norm(np.diff(scan_odom[:, :3, 3], axis=0), axis=1)
-    path = np.concatenate([[0.0], np.cumsum(steps)])
-    return lambda stamp: float(np.interp(stamp, scan_stamps, path))
-
-
 def _factors(
     ex: _Extracted,
     matched: _Matched,
@@ -309,7 +302,7 @@ def _factors(
         return constraints, None
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
     seq = sequential_constraints(
-        ex.landmarks, matched.tracks, anchors, anchor_stamps, _path_at(*scans), cfg
+        ex.landmarks, matched.tracks, anchors, anchor_stamps, path_along(*scans), cfg
     )
     return constraints + seq.constraints, seq
 

@@ -31,6 +31,7 @@ what the odometry can do (a frontend that stalls along the axis needs up to 1).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,6 +46,7 @@ __all__ = [
     "LoopEvidence",
     "Selection",
     "effective_db_origin",
+    "path_along",
     "select_consistent",
     "select_loops",
     "why_no_loop",
@@ -154,6 +156,13 @@ def effective_db_origin(result: QueryResult) -> FloatArray:
     )
 
 
+def path_along(scan_stamps: FloatArray, scan_odom: FloatArray) -> Callable[[float], float]:
+    """Path length along the odometry (metres) at a stamp, interpolated between scans."""
+    steps = np.linalg.norm(np.diff(scan_odom[:, :3, 3], axis=0), axis=1)
+    path = np.concatenate([[0.0], np.cumsum(steps)])
+    return lambda stamp: float(np.interp(stamp, scan_stamps, path))
+
+
 def select_loops(
     results: list[QueryResult],
     anchors: dict[float, FloatArray],
@@ -163,8 +172,7 @@ def select_loops(
 ) -> tuple[list[bool], list[str]]:
     """For every query result: whether it stays a loop, and why not (the matcher's own
     rejection, or ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`)."""
-    steps = np.linalg.norm(np.diff(scan_odom[:, :3, 3], axis=0), axis=1)
-    path = np.concatenate([[0.0], np.cumsum(steps)])
+    along = path_along(scan_stamps, scan_odom)
 
     def world(stamp: float, point: FloatArray) -> FloatArray:
         pose = anchors[stamp]
@@ -175,8 +183,8 @@ def select_loops(
         LoopEvidence(
             correction=world(r.candidate_stamp, effective_db_origin(r))
             - world(r.query_stamp, np.asarray(r.query_origin, dtype=np.float64)),
-            query_path_m=float(np.interp(r.query_stamp, scan_stamps, path)),
-            db_path_m=float(np.interp(r.candidate_stamp, scan_stamps, path)),
+            query_path_m=along(r.query_stamp),
+            db_path_m=along(r.candidate_stamp),
             query_stamp=r.query_stamp,
             inliers=r.inliers,
             chance=r.chance,
