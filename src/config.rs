@@ -257,6 +257,16 @@ pub struct MatchingConfig {
     /// together) of each other can corroborate, which caps the allowance at
     /// `consistency_tolerance_m + consistency_drift_fraction * consistency_window_m`.
     pub consistency_window_m: f64,
+    /// `decod run`: a query rejected `not_unique` (its Top-1 is beyond chance, but so is a
+    /// runner-up at another boundary) is kept when the trajectory corrected by the other
+    /// loops puts the query within `consistency_tolerance_m` of its Top-1 and the runner-up
+    /// more than twice that away (`disambiguation` module of the Python package). In
+    /// segmental and arched tunnels neighbouring rings share most of their structure, so
+    /// the runner-up is often beyond chance; in the generalisation matrix this rejected
+    /// ~70 % of the right Top-1s (shield, 64 beams: 78 right, 31 accepted). Absent from a
+    /// stored config: false.
+    #[serde(default)]
+    pub resolve_with_prior: bool,
 }
 
 fn fixed_acceptance() -> String {
@@ -438,6 +448,7 @@ impl DecodConfig {
                 false_alarm_rate: default_false_alarm_rate(),
                 uniqueness_alpha: default_uniqueness_alpha(),
                 min_inliers_floor: default_min_inliers_floor(),
+                resolve_with_prior: true,
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import platform
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +27,7 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
+from decod_rs.disambiguation import CorrectedFrame, near_loops, resolve_with_prior
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.io import find_imu_topic
@@ -137,9 +138,10 @@ def _match(
     cfg: Config,
     mode: str,
     split: float | None,
-) -> tuple[list[QueryResult], str, int]:
-    """Queries and their top-1 results, the mode used, and the database size. Every view
-    goes into the database under its track (physical boundary) id."""
+) -> tuple[list[QueryResult], str, list[int]]:
+    """Queries and their top-1 results, the mode used, and the landmark behind each
+    database index. Every view goes into the database under its track (physical boundary)
+    id."""
     db = LandmarkDatabase(cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
@@ -151,15 +153,17 @@ def _match(
         outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
         db.extend([landmarks[k] for k in outbound], [int(tracks[k]) for k in outbound])
         queries = [lm for lm in landmarks if lm.submap_stamp > split]
-        return db.query_batch(queries), mode, len(db)
+        return db.query_batch(queries), mode, outbound
     results = []
-    for k in sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp):
+    order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
+    for k in order:
         results.append(db.query(landmarks[k]))
         db.add(landmarks[k], int(tracks[k]))
-    return results, mode, len(db)
+    return results, mode, order
 
 
-def _loop_table(results: list[QueryResult], keep: list[bool], reasons: list[str]) -> LoopTable:
+def _loop_table(matched: _Matched) -> LoopTable:
+    results, keep, reasons = matched.results, matched.keep, matched.reasons
     n = len(results)
     nan3 = np.full(3, np.nan)
 
@@ -191,6 +195,10 @@ def _loop_table(results: list[QueryResult], keep: list[bool], reasons: list[str]
             "eligible_candidates": [str(r.eligible) for r in results],
             "chance": [f"{r.chance:.3g}" for r in results],
             "reason": reasons,
+            "accepted_by": [
+                ("position_prior" if k in matched.by_prior else "descriptor") if ok else ""
+                for k, ok in enumerate(keep)
+            ],
         },
     )
 
@@ -239,15 +247,22 @@ def _chainage(
 
 @dataclass
 class _Matched:
-    """Stages 2-3: the tracks, every query's Top-1 and which stay loops (and why not)."""
+    """Stages 2-3: the tracks, every query's Top-1 and which stay loops (and why not);
+    ``db_order[i]``: the landmark behind database index ``i``; ``by_prior``: the loops kept
+    by :mod:`decod_rs.disambiguation`."""
 
     split: float | None
     tracks: NDArray[np.int64]
     results: list[QueryResult]
     mode: str
-    database: int
+    db_order: list[int]
     keep: list[bool]
     reasons: list[str]
+    by_prior: frozenset[int] = frozenset()
+
+    @property
+    def database(self) -> int:
+        return len(self.db_order)
 
 
 def _configure(
@@ -284,9 +299,36 @@ def _match_and_select(
         float(m.min_time_separation_s),
         same_boundary(ex.landmarks, m),
     )
-    results, used_mode, db_size = _match(ex.landmarks, tracks, cfg, mode, split)
+    results, used_mode, db_order = _match(ex.landmarks, tracks, cfg, mode, split)
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)
-    return _Matched(split, tracks, results, used_mode, db_size, keep, reasons)
+    return _Matched(split, tracks, results, used_mode, db_order, keep, reasons)
+
+
+def _resolve(
+    ex: _Extracted,
+    matched: _Matched,
+    cfg: Config,
+    scans: tuple[FloatArray, FloatArray],
+    corrected: FloatArray,
+) -> _Matched:
+    """Stage 3b: ambiguous queries placed by the corrected trajectory, then the whole
+    loop set selected again (:mod:`decod_rs.disambiguation`)."""
+    m = cfg.matching
+    loops = [r.query_stamp for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
+    promoted = resolve_with_prior(
+        matched.results,
+        matched.reasons,
+        [ex.landmarks[i] for i in matched.db_order],
+        CorrectedFrame(scans[0], corrected),
+        float(m.consistency_tolerance_m),
+        near_loops(loops, path_along(*scans), float(m.consistency_window_m)),
+    )
+    if not promoted:
+        return matched
+    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
+    keep, reasons = select_loops(matched.results, anchors, *scans, m, also=promoted)
+    by_prior = frozenset(k for k in promoted if keep[k])
+    return replace(matched, keep=keep, reasons=reasons, by_prior=by_prior)
 
 
 def _factors(
@@ -352,7 +394,7 @@ def _write(
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
     write_tum(out / "corrected.tum", scan_stamps, correction.poses)
-    write_loops_csv(out / "loops.csv", _loop_table(matched.results, matched.keep, matched.reasons))
+    write_loops_csv(out / "loops.csv", _loop_table(matched))
     lms = ex.landmarks
     chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
@@ -489,6 +531,12 @@ def finish_run(
     t0 = time.perf_counter()
     constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
     correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
+    if loops and cfg.matching.resolve_with_prior:
+        resolved = _resolve(ex, matched, cfg, scans, correction.poses)
+        if resolved is not matched:
+            matched = resolved
+            constraints, seq = _factors(ex, matched, cfg, scans)
+            correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
     timings["optimise"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -583,6 +631,7 @@ def _report(
             "database": matched.database,
             "queries": summary.queries,
             "accepted": summary.accepted,
+            "accepted_by_position_prior": len(matched.by_prior),
             "loop_factors": loop_factors,
             "sequential_factors": len(constraints) - loop_factors,
         },
