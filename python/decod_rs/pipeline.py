@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import platform
+import tempfile
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -35,6 +36,8 @@ from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
+from decod_rs.refinement import rebuild_decision
+from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
@@ -379,6 +382,68 @@ def _optimise(
     return correction, scale, start
 
 
+@dataclass(frozen=True)
+class _Solved:
+    """Stage 4: the factors, the optimised trajectory and the odometry it started from."""
+
+    constraints: list[LoopConstraint]
+    seq: SequentialFactors | None
+    correction: CorrectionResult
+    scale: ScaleEstimate | None
+    start: FloatArray
+
+
+def _solve(
+    ex: _Extracted,
+    matched: _Matched,
+    cfg: Config,
+    scans: tuple[FloatArray, FloatArray],
+    loops: bool,
+) -> tuple[_Matched, _Solved]:
+    """Factors and optimisation; then ambiguous queries placed by the corrected trajectory
+    and, if any became loops, factors and optimisation again (stage 3b); then, one at a
+    time, loops the optimised graph cannot satisfy dropped (:mod:`decod_rs.residuals`)."""
+
+    def solve(matched: _Matched) -> _Solved:
+        constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
+        return _Solved(
+            constraints, seq, *_optimise(scans, ex, matched.split, constraints, seq, cfg)
+        )
+
+    solved = solve(matched)
+    if loops and cfg.matching.resolve_with_prior:
+        resolved = _resolve(ex, matched, cfg, scans, solved.correction.poses)
+        if resolved is not matched:
+            matched, solved = resolved, solve(resolved)
+    tolerance = float(cfg.matching.consistency_tolerance_m)
+    for _ in range(MAX_DROPS if loops else 0):
+        frame = CorrectedFrame(scans[0], solved.correction.poses)
+        worst = worst_unsatisfied(loop_residuals(matched.results, matched.keep, frame), tolerance)
+        if worst is None:
+            break
+        keep, reasons = list(matched.keep), list(matched.reasons)
+        keep[worst], reasons[worst] = False, "inconsistent"
+        matched = replace(matched, keep=keep, reasons=reasons, by_prior=matched.by_prior - {worst})
+        solved = solve(matched)
+    return matched, solved
+
+
+def _rebuild(
+    extraction: Extracted, cfg: Config, corrected: FloatArray, progress: bool
+) -> _Extracted:
+    """Stage 1 again, the submaps stitched by the corrected trajectory; the anchors placed
+    on the odometry like the first ones (:mod:`decod_rs.refinement`)."""
+    stamps, odometry = extraction.scans
+    with tempfile.TemporaryDirectory(prefix="decod-rebuild-") as tmp:
+        tum = Path(tmp) / "corrected.tum"
+        write_tum(tum, stamps, corrected)
+        points = extraction.processor.points_topic
+        _, ex = _extract(extraction.log, cfg, points, None, tum, extraction.imu_topic, progress)
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
+    return ex
+
+
 def _write(
     out: Path,
     ex: _Extracted,
@@ -486,7 +551,16 @@ def run_log(
     head = {"preset": preset, "auto": auto, "imu_topic": imu_topic}
     visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
     return finish_run(
-        Extracted(log, processor, ex, scans), out, cfg, mode, loops, plots, timings, head, visuals
+        Extracted(log, processor, ex, scans, imu_topic),
+        out,
+        cfg,
+        mode,
+        loops,
+        plots,
+        timings,
+        head,
+        visuals,
+        progress,
     )
 
 
@@ -499,6 +573,7 @@ class Extracted:
     processor: _core.LogProcessor
     extracted: _Extracted
     scans: tuple[FloatArray, FloatArray]
+    imu_topic: str | None = None
 
 
 @dataclass(frozen=True)
@@ -519,6 +594,7 @@ def finish_run(
     timings: dict[str, float],
     report_head: dict[str, Any],
     visuals: Visuals,
+    progress: bool = False,
 ) -> RunSummary:
     """Stages 2-5 of Algorithm 1 on an extraction: match -> select -> optimise -> write
     (report.json last, with ``report_head`` merged in). ``decod run`` and ``decod sweep``
@@ -529,15 +605,20 @@ def finish_run(
     timings["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
-    correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
-    if loops and cfg.matching.resolve_with_prior:
-        resolved = _resolve(ex, matched, cfg, scans, correction.poses)
-        if resolved is not matched:
-            matched = resolved
-            constraints, seq = _factors(ex, matched, cfg, scans)
-            correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
+    matched, solved = _solve(ex, matched, cfg, scans, loops)
     timings["optimise"] = time.perf_counter() - t0
+
+    rebuild = None
+    if loops and cfg.submap.rebuild_on_correction:
+        t0 = time.perf_counter()
+        rebuild = rebuild_decision(scans[1], solved.correction.poses, cfg)
+        if rebuild.needed:
+            ex = _rebuild(extraction, cfg, solved.correction.poses, progress)
+            matched = _match_and_select(ex, cfg, mode, *scans)
+            matched, solved = _solve(ex, matched, cfg, scans, loops)
+        timings["rebuild"] = time.perf_counter() - t0
+    constraints, seq, correction = solved.constraints, solved.seq, solved.correction
+    scale, start = solved.scale, solved.start
 
     t0 = time.perf_counter()
     joints = _write(out, ex, matched, (scans, start), correction, constraints, cfg)
@@ -564,7 +645,7 @@ def finish_run(
     report = _report(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
-    report.update(loops_enabled=loops)
+    report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild.report())
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
     report.update(report_head)

@@ -115,7 +115,13 @@ def run_from_extraction(
         **(report_extra or {}),
     }
     return finish_run(
-        Extracted(extraction.log, extraction.processor, extraction.extracted, extraction.scans),
+        Extracted(
+            extraction.log,
+            extraction.processor,
+            extraction.extracted,
+            extraction.scans,
+            extraction.imu_topic,
+        ),
         out_dir,
         cfg,
         opts.mode,
