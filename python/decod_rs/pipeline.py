@@ -29,12 +29,19 @@ from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
+from decod_rs.ingest import StreamHealth, ingest_section, warn_once
 from decod_rs.io import find_imu_topic
 from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
-from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
+from decod_rs.run_files import (
+    LandmarkTable,
+    LoopTable,
+    staged_run_dir,
+    write_landmarks_csv,
+    write_loops_csv,
+)
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
 from decod_rs.tracks import group_views
@@ -314,6 +321,7 @@ def _optimise(
     constraints: list[LoopConstraint],
     seq: SequentialFactors | None,
     cfg: Config,
+    gap_factors: FloatArray | None = None,
 ) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
     """The pose graph, started from the odometry rescaled by the tracked boundaries
     (:mod:`decod_rs.odometry_scale`) when there are sequential factors; also returns the
@@ -331,6 +339,8 @@ def _optimise(
         # X* = X_odom if L is empty"); a few sequential factors alone only add noise.
         constraints = []
     factors = None if scale is None else odometry_sigma_factors(scans[0], scale, split)
+    if gap_factors is not None:  # odometry gaps bridged by a weak factor (decod_rs.ingest)
+        factors = gap_factors if factors is None else factors * gap_factors
     correction = correct_trajectory(
         scans[0], start, anchor_stamps, constraints, cfg.graph, sigma_factors=factors
     )
@@ -419,7 +429,6 @@ def run_log(
 
         require_rerun()  # fail before the run, not after it
     log, out = Path(log), Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
@@ -438,14 +447,24 @@ def run_log(
         np.asarray(processor.scan_stamps(), dtype=np.float64),
         np.asarray(processor.scan_poses(), dtype=np.float64),
     )
+    health = StreamHealth.from_core(processor.health())
+    warn_once(log, health)  # damage, gaps: the run goes on with what the log holds
     if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
-
-    head = {"preset": preset, "auto": auto, "imu_topic": imu_topic}
-    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
-    return finish_run(
-        Extracted(log, processor, ex, scans), out, cfg, mode, loops, plots, timings, head, visuals
+    ingest, gap_factors = ingest_section(
+        health, processor.points_topic, scans, float(cfg.submap.odometry_gap_periods)
     )
+
+    head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}
+    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
+    extraction = Extracted(log, processor, ex, scans, gap_factors)
+    # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
+    with staged_run_dir(out) as staging:
+        summary = finish_run(
+            extraction, staging, cfg, mode, loops, plots, timings, head, visuals
+        )
+    summary.out_dir = out
+    return summary
 
 
 @dataclass(frozen=True)
@@ -457,6 +476,7 @@ class Extracted:
     processor: _core.LogProcessor
     extracted: _Extracted
     scans: tuple[FloatArray, FloatArray]
+    gap_factors: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -488,7 +508,9 @@ def finish_run(
 
     t0 = time.perf_counter()
     constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
-    correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
+    correction, scale, start = _optimise(
+        scans, ex, matched.split, constraints, seq, cfg, extraction.gap_factors
+    )
     timings["optimise"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -576,6 +598,7 @@ def _report(
         "counts": {
             "scans": summary.scans,
             "skipped_outside_odometry": len(processor.skipped_outside_odometry),
+            "skipped_in_odometry_gaps": len(processor.health()[2]),
             "submaps": summary.submaps,
             "landmarks": summary.landmarks,
             "tracks": int(np.unique(matched.tracks).size),
