@@ -561,7 +561,9 @@ def test_corrupt_chunk_crc_is_skipped_and_reading_goes_on(tmp_path):
     raw[at] ^= 0xFF
     log.write_bytes(bytes(raw))
     reader = decod_rs.read_log(log, odom="/odom")
-    with pytest.warns(decod_rs.LogWarning, match=r"r1\.mcap: corrupt at byte \d+: chunk skipped: CRC"):
+    with pytest.warns(
+        decod_rs.LogWarning, match=r"r1\.mcap: corrupt at byte \d+: chunk skipped: CRC"
+    ):
         got = list(reader)
     (fault,) = reader.health.faults
     assert fault.lost_span_s is not None and fault.messages_lost is not None

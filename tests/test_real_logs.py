@@ -41,7 +41,6 @@ from test_io import (
 import decod_rs
 from decod_rs.cli import main as cli_main
 
-
 RNG = np.random.default_rng(11)
 
 
@@ -62,7 +61,9 @@ def bag_chunks(raw: bytes) -> list[tuple[int, int]]:
     return out
 
 
-def read_all(log: Path, **kwargs: object) -> tuple[list[decod_rs.io.ScanRecord], decod_rs.StreamHealth]:
+def read_all(
+    log: Path, **kwargs: object
+) -> tuple[list[decod_rs.io.ScanRecord], decod_rs.StreamHealth]:
     """Every scan of ``log`` (warnings recorded, not raised) and the stream's health."""
     reader = decod_rs.read_log(log, **kwargs)  # type: ignore[arg-type]
     with warnings.catch_warnings():
@@ -232,7 +233,9 @@ def test_backwards_and_duplicated_stamps_are_left_out_never_reordered(tmp_path: 
     msgs = [(topic, 0.01 * k, body) for k, (topic, _, body) in enumerate(msgs)]  # record order
     for k, t in enumerate(cloud_stamps):
         data, width, _ = cloud_bytes(random_points(10), fields, step, big)
-        msgs.append(("/velodyne_points", 0.3 + 0.01 * k, r1_cloud(t, data, fields, step, big, width)))
+        msgs.append(
+            ("/velodyne_points", 0.3 + 0.01 * k, r1_cloud(t, data, fields, step, big, width))
+        )
     log = write_ros1_mcap(tmp_path / "order.mcap", R1_TOPICS, msgs)
     scans, health = read_all(log)
     kinds = [(round(a, 3), round(b, 3), kind) for a, b, kind in health.gaps]
@@ -297,7 +300,9 @@ def assert_same_logs(a: Path, b: Path) -> None:
     assert [(t.topic, t.count) for t in ia.topics] == [(t.topic, t.count) for t in ib.topics]
     assert (ia.start, ia.end) == (ib.start, ib.end) and ib.problem is None
     ca, cb = decod_rs.check_log(a), decod_rs.check_log(b)
-    assert [(c.topic, c.decoded, c.points) for c in ca] == [(c.topic, c.decoded, c.points) for c in cb]
+    assert [(c.topic, c.decoded, c.points) for c in ca] == [
+        (c.topic, c.decoded, c.points) for c in cb
+    ]
 
 
 @pytest.mark.parametrize("livox", [False, True], ids=["pointcloud2", "livox"])
@@ -348,7 +353,9 @@ def test_db3_reads_like_mcap(tmp_path: Path) -> None:
     for k in range(9):
         t = 0.1 + 0.2 * k
         data, width, row_step = cloud_bytes(random_points(80), fields, step, big)
-        msgs.append(("/points", t, ros2_cloud(store, t, data, fields, step, big, width, 1, row_step)))
+        msgs.append(
+            ("/points", t, ros2_cloud(store, t, data, fields, step, big, width, 1, row_step))
+        )
     paths = {}
     for name, plugin in (("mcap", StoragePlugin.MCAP), ("db3", StoragePlugin.SQLITE3)):
         paths[name] = tmp_path / name

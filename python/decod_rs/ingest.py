@@ -136,7 +136,7 @@ def gap_bridges(
     speed = _normal_speed(stamps, poses, spans)
     factors = np.ones(stamps.size)
     bridges = []
-    for a, b in spans:
+    for _start, b in spans:
         after = int(np.searchsorted(stamps, b, side="left"))
         if after == 0 or after >= stamps.size:
             bridges.append("none")

@@ -460,9 +460,7 @@ def run_log(
     extraction = Extracted(log, processor, ex, scans, gap_factors)
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
     with staged_run_dir(out) as staging:
-        summary = finish_run(
-            extraction, staging, cfg, mode, loops, plots, timings, head, visuals
-        )
+        summary = finish_run(extraction, staging, cfg, mode, loops, plots, timings, head, visuals)
     summary.out_dir = out
     return summary
 

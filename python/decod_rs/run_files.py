@@ -305,4 +305,3 @@ def staged_run_dir(out: Path) -> Iterator[Path]:
     staging.mkdir(parents=True)
     yield staging
     _publish(staging, out)
-

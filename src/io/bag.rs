@@ -20,7 +20,7 @@ use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::log::{TopicInfo, log_error};
+use super::log::{FileSummary, TopicInfo, log_error};
 use super::mcap_file::lz4_frame;
 use super::source::{
     ChannelMeta, ContainerReader, FaultKind, Item, LogFault, RECORD_LENGTH_LIMIT, RawMessage,
@@ -49,7 +49,10 @@ struct BagRecord {
 }
 
 /// The `name=value` fields of a record header, or why it is malformed.
-fn fields(header: &[u8]) -> std::result::Result<Vec<(&[u8], &[u8])>, String> {
+/// `(name, value)` pairs of a record header.
+type Fields<'a> = Vec<(&'a [u8], &'a [u8])>;
+
+fn fields(header: &[u8]) -> std::result::Result<Fields<'_>, String> {
     let mut out = Vec::new();
     let mut at = 0usize;
     while at < header.len() {
@@ -184,6 +187,8 @@ pub struct BagFile {
     file_len: u64,
     pos: u64,
     index_pos: Option<u64>,
+    chunk_count: Option<u32>,
+    chunk_infos: u32,
     connections: HashMap<u32, Arc<ChannelMeta>>,
     chunk: Option<ChunkCursor>,
     pending_fault: Option<LogFault>,
@@ -217,6 +222,12 @@ fn open_bag(path: &Path) -> Result<(BufReader<File>, u64)> {
 impl BagFile {
     /// Opens a bag for streaming (see [`open_bag`] for the errors).
     pub fn open(path: &Path) -> Result<Self> {
+        let file_len = std::fs::metadata(path)
+            .map_err(|e| io_error(path, e))?
+            .len();
+        if file_len < BAG_MAGIC.len() as u64 {
+            return Self::cut_in_magic(path, file_len);
+        }
         let (reader, file_len) = open_bag(path)?;
         // A closed bag lists its connections at the end too: with them, a message whose
         // connection record sat in a lost chunk is still readable.
@@ -232,6 +243,8 @@ impl BagFile {
             file_len,
             pos: BAG_MAGIC.len() as u64,
             index_pos: None,
+            chunk_count: None,
+            chunk_infos: 0,
             connections,
             chunk: None,
             pending_fault: None,
@@ -239,6 +252,41 @@ impl BagFile {
             last_time: None,
             done: false,
         })
+    }
+
+    /// A bag shorter than its version line: a cut-off file if what is there is the start of
+    /// the line, else not a bag.
+    fn cut_in_magic(path: &Path, file_len: u64) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
+        if !BAG_MAGIC.starts_with(&bytes) {
+            return Err(log_error(
+                path,
+                None,
+                "not a ROS 1 bag (no `#ROSBAG V2.0` line)",
+            ));
+        }
+        let file = File::open(path).map_err(|e| io_error(path, e))?;
+        let mut me = Self {
+            path: path.to_path_buf(),
+            reader: BufReader::new(file),
+            file_len,
+            pos: file_len,
+            index_pos: None,
+            chunk_count: None,
+            chunk_infos: 0,
+            connections: HashMap::new(),
+            chunk: None,
+            pending_fault: None,
+            peeked: None,
+            last_time: None,
+            done: true,
+        };
+        me.pending_fault = Some(me.fault(
+            FaultKind::Truncated,
+            0,
+            "file ends inside the bag's version line",
+        ));
+        Ok(me)
     }
 
     fn fault(&self, kind: FaultKind, offset: u64, reason: impl Into<String>) -> LogFault {
@@ -291,8 +339,8 @@ impl BagFile {
                 }));
             }
             op::BAG_HEADER => {
-                let index_pos = field(&f, "index_pos").and_then(|v| le_u64(v, 0));
-                self.index_pos = index_pos;
+                self.index_pos = field(&f, "index_pos").and_then(|v| le_u64(v, 0));
+                self.chunk_count = field(&f, "chunk_count").and_then(|v| le_u32(v, 0));
             }
             _ => {}
         }
@@ -363,6 +411,16 @@ impl BagFile {
                     "the bag has no index (recording not closed, or cut off at a record boundary)";
                 Err(self.fault(FaultKind::Truncated, self.pos, reason))
             }
+            Ok(None) if self.chunk_count.is_some_and(|n| self.chunk_infos < n) => {
+                let reason = format!(
+                    "file ends inside the index section ({} of {} chunk-info records)",
+                    self.chunk_infos,
+                    self.chunk_count.unwrap_or(0)
+                );
+                let mut fault = self.fault(FaultKind::Truncated, self.pos, reason);
+                fault.messages_lost = Some(0);
+                Err(fault)
+            }
             Ok(None) => Ok(None),
             Err((kind, reason)) => Err(self.fault(kind, self.pos, reason)),
         }
@@ -403,7 +461,8 @@ impl BagFile {
             }
             match opcode {
                 op::CHUNK => self.open_chunk(&record),
-                op::INDEX_DATA | op::CHUNK_INFO => {}
+                op::CHUNK_INFO => self.chunk_infos += 1,
+                op::INDEX_DATA => {}
                 _ => match self.handle(&record.header, &record.data, record.offset) {
                     Ok(Some(msg)) => return Some(Item::Message(msg)),
                     Ok(None) => {}
@@ -518,7 +577,7 @@ fn read_index(path: &Path) -> Result<Option<BagIndex>> {
 
 /// Topics, counts and time span of a closed bag from its index; `Ok(None)` when the bag
 /// has no usable index (then the caller reads the messages).
-pub fn bag_summary(path: &Path) -> Result<Option<(Vec<TopicInfo>, Option<u64>, Option<u64>)>> {
+pub fn bag_summary(path: &Path) -> Result<Option<FileSummary>> {
     let Some(index) = read_index(path)? else {
         return Ok(None);
     };

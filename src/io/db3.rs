@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 use rusqlite::{Connection, OpenFlags};
 
-use super::log::{TopicInfo, log_error};
+use super::log::{FileSummary, TopicInfo, log_error};
 use super::source::{ChannelMeta, ContainerReader, FaultKind, Item, LogFault, RawMessage};
 use crate::error::Result;
 
@@ -143,7 +143,7 @@ impl ContainerReader for Db3File {
 }
 
 /// Topics, counts and time span of a `.db3` file by SQL (no message is read).
-pub fn db3_summary(path: &Path) -> Result<(Vec<TopicInfo>, Option<u64>, Option<u64>)> {
+pub fn db3_summary(path: &Path) -> Result<FileSummary> {
     let db = connect(path)?;
     let channels = channels(path, &db)?;
     let mut stmt = db

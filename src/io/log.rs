@@ -173,7 +173,7 @@ fn add_topic(topics: &mut Vec<TopicInfo>, channel: &ChannelMeta, count: u64) {
 }
 
 /// Topics and time span (ns) of one file.
-type FileSummary = (Vec<TopicInfo>, Option<u64>, Option<u64>);
+pub type FileSummary = (Vec<TopicInfo>, Option<u64>, Option<u64>);
 
 /// A file's summary from its container's index, `None` when it has no usable one (a
 /// cut-off MCAP, an unclosed bag).

@@ -19,7 +19,7 @@ use mcap::records::{Record, op};
 use super::log::log_error;
 use super::source::{
     ChannelMeta, ContainerReader, FaultKind, Item, LogFault, RECORD_LENGTH_LIMIT, RawMessage,
-    io_error, le_u64,
+    io_error, le_u32, le_u64,
 };
 use crate::error::Result;
 
@@ -285,8 +285,9 @@ impl McapFile {
             };
             if let Some(mut fault) = self.pending_fault.take() {
                 if record.opcode == op::MESSAGE_INDEX {
-                    // Entries of the skipped chunk: 8-byte time + 8-byte offset each.
-                    let entries = le_u64(&record.body, 2).map_or(0, |bytes| bytes / 16);
+                    // channel id (u16), then the entries' byte length (u32): 8-byte time +
+                    // 8-byte offset each.
+                    let entries = le_u32(&record.body, 2).map_or(0, |bytes| u64::from(bytes) / 16);
                     fault.messages_lost = Some(fault.messages_lost.unwrap_or(0) + entries);
                     self.pending_fault = Some(fault);
                     continue;
@@ -325,7 +326,10 @@ impl McapFile {
 
 /// The decompressed, CRC-checked content of a chunk record, or why not and the chunk's
 /// log-time span.
-fn decompress_chunk(body: &[u8]) -> std::result::Result<Vec<u8>, (String, Option<(u64, u64)>)> {
+/// Why a chunk is unusable, and its log-time span when its header was readable.
+type ChunkError = (String, Option<(u64, u64)>);
+
+fn decompress_chunk(body: &[u8]) -> std::result::Result<Vec<u8>, ChunkError> {
     let (header, data) = match mcap::parse_record(op::CHUNK, body) {
         Ok(Record::Chunk { header, data }) => (header, data),
         Ok(_) => return Err(("not a chunk".into(), None)),

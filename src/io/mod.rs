@@ -29,6 +29,8 @@ pub mod tum;
 pub mod wire;
 
 #[cfg(test)]
+mod container_tests;
+#[cfg(test)]
 mod fuzz;
 
 pub use check::{TopicCheck, check};

@@ -545,7 +545,10 @@ impl ScanStream {
     /// Whether a cloud stamped `stamp` is used: inside the odometry span, outside its gaps,
     /// after the previous scan. Clouds left out are recorded by reason.
     fn usable(&mut self, stamp: f64) -> bool {
-        if let Some(previous) = self.previous_stamp.filter(|&p| !(stamp > p)) {
+        if let Some(previous) = self
+            .previous_stamp
+            .filter(|&p| p.partial_cmp(&stamp) != Some(std::cmp::Ordering::Less))
+        {
             self.stats.out_of_order += 1;
             self.out_of_order.push((stamp, previous));
             return false;

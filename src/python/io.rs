@@ -157,7 +157,8 @@ fn tum_row(stamp: f64, pose: &crate::geometry::Pose) -> [f64; 8] {
 
 /// Opens a scan stream (reads odometry and IMU first). `odom` and `odom_tum` are exclusive.
 #[pyfunction]
-#[pyo3(signature = (path, points = None, odom = None, odom_tum = None, imu = None, gap_periods = crate::io::odometry::DEFAULT_GAP_PERIODS))]
+/// `gap_periods`: odometry gap bound in median periods (5.0 = `DEFAULT_GAP_PERIODS`).
+#[pyo3(signature = (path, points = None, odom = None, odom_tum = None, imu = None, gap_periods = 5.0))]
 fn open_scan_stream(
     py: Python<'_>,
     path: PathBuf,
