@@ -64,11 +64,19 @@ def bag_chunks(raw: bytes) -> list[tuple[int, int]]:
 def read_all(
     log: Path, **kwargs: object
 ) -> tuple[list[decod_rs.io.ScanRecord], decod_rs.StreamHealth]:
-    """Every scan of ``log`` (warnings recorded, not raised) and the stream's health."""
+    """Every scan of ``log`` (undecodable messages skipped as ``decod run`` does, warnings
+    silenced) and the stream's health."""
     reader = decod_rs.read_log(log, **kwargs)  # type: ignore[arg-type]
+    scans = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", decod_rs.LogWarning)
-        scans = list(reader)
+        while True:
+            try:
+                scans.append(next(reader))
+            except StopIteration:
+                break
+            except decod_rs.LogFormatError:
+                continue  # named in health.message_errors; the stream goes on
     return scans, reader.health
 
 
@@ -384,3 +392,38 @@ def test_damaged_db3_is_a_fault_not_a_crash(tmp_path: Path) -> None:
         assert "b_0.db3" in str(exc) or str(db3) in str(exc)
     else:
         assert info.problem is not None or sum(t.count for t in info.topics) <= 21 * 40
+
+
+def test_unusable_clouds_are_counted_per_topic(tmp_path: Path) -> None:
+    fields, step, big = LAYOUTS["velodyne"]
+    some_nan = random_points(5)
+    some_nan[[1, 3], 2] = np.nan
+    clouds = {
+        0.1: random_points(10),
+        0.3: np.zeros((0, 3), np.float32),  # zero-size (width 0)
+        0.5: np.full((4, 3), np.inf, np.float32),  # every point non-finite
+        0.7: some_nan,
+        1.1: random_points(10),
+    }
+    msgs = [("/odom", t, r1_odometry(t)) for t in ODOM_STAMPS]
+    for t, pts in clouds.items():
+        data, width, _ = cloud_bytes(pts, fields, step, big)
+        msgs.append(("/velodyne_points", t, r1_cloud(t, data, fields, step, big, width)))
+    # A field beyond point_step: z at offset step - 2.
+    data, width, _ = cloud_bytes(random_points(3), fields, step, big)
+    beyond = [(n, step - 2 if n == "z" else o, d) for n, o, d in fields]
+    msgs.append(("/velodyne_points", 0.9, r1_cloud(0.9, data, beyond, step, big, width)))
+    log = write_ros1_mcap(tmp_path / "bad.mcap", R1_TOPICS, msgs)
+    scans, health = read_all(log)
+    assert [len(s.points) for s in scans] == [10, 0, 0, 3, 10]
+    assert health.clouds == {
+        "messages": 6,
+        "undecodable": 1,
+        "zero_size": 1,
+        "empty": 1,
+        "non_finite_points": 6,
+        "out_of_order": 0,
+    }
+    (error,) = health.message_errors
+    assert str(log) in error and "[topic /velodyne_points]" in error
+    assert "log time 0.900000000 s" in error and "overruns point_step" in error
