@@ -54,6 +54,18 @@ def test_cut_off_log_runs_to_the_end_and_reports_the_cut(sim: Path, tmp_path: Pa
     assert all((tmp_path / "out" / name).is_file() for name in OUTPUTS)
 
 
+def test_auto_preset_on_a_cut_off_log_warns_once(sim: Path, tmp_path: Path) -> None:
+    raw = (sim / "log" / "log.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(raw[: int(len(raw) * 0.3)])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run_log(cut, tmp_path / "out", progress=False, plots=False)
+    assert sum(issubclass(w.category, decod_rs.LogWarning) for w in caught) == 1
+    report = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
+    assert report["auto"] is not None and report["ingest"]["faults"][0]["kind"] == "truncated"
+
+
 def test_ros1_bag_runs_like_the_mcap_log(sim: Path, tmp_path: Path) -> None:
     bag = _run(sim / "log.bag", tmp_path / "bag")
     ref = _run(sim / "log", tmp_path / "mcap")
