@@ -234,73 +234,16 @@ impl ScanStream {
             .find(|c| c.info.topic == points_topic)
             .map_or(0, |c| c.info.count);
 
-        let mut odometry_topic = None;
-        let trajectory = match &opts.odometry {
-            OdometrySource::Tum(tum) => Trajectory::new(read_tum(tum)?, opts.gap_periods),
-            OdometrySource::Topic(requested) => {
-                let (topic, kind, encoding) = resolve_topic(
-                    path,
-                    &channels,
-                    requested.as_deref(),
-                    "odometry (Odometry, PoseStamped, TransformStamped or TFMessage)",
-                    MessageKind::is_odometry,
-                )?;
-                let mut samples: Vec<PoseSample> = Vec::new();
-                for kept in kept
-                    .iter()
-                    .filter(|k| channels[k.channel].info.topic == topic)
-                {
-                    // A bad odometry message is left out (named in the report): the interval
-                    // it leaves becomes a gap if it is long.
-                    match decode_poses(kind, encoding, &kept.data) {
-                        Ok(decoded) => samples.extend(decoded),
-                        Err(e) if message_errors.len() < MAX_MESSAGE_ERRORS => {
-                            let at = kept.log_time as f64 * 1e-9;
-                            let err = log_error(
-                                &kept.file,
-                                Some(&topic),
-                                format!("message at log time {at:.9} s: {e}"),
-                            );
-                            message_errors.push(err.to_string());
-                        }
-                        Err(_) => {}
-                    }
-                }
-                let chain = single_transform_chain(path, &topic, samples)?;
-                let trajectory = Trajectory::new(chain, opts.gap_periods);
-                odometry_topic = Some(topic);
-                trajectory
-            }
-        };
-        if trajectory.is_empty() {
-            let reason = match fault_text {
-                Some(fault) => {
-                    format!("odometry topic has no messages before the log's damage: {fault}")
-                }
-                None => "odometry topic has no messages".to_string(),
-            };
-            return Err(log_error(path, odometry_topic.as_deref(), reason));
-        }
+        let trajectory = odometry_trajectory(
+            path,
+            opts,
+            (&channels, &kept),
+            &mut message_errors,
+            fault_text,
+        )?;
         let imu = match &opts.imu_topic {
             None => None,
-            Some(requested) => {
-                let (topic, _, encoding) = resolve_topic(
-                    path,
-                    &channels,
-                    Some(requested),
-                    "IMU (sensor_msgs/Imu)",
-                    |k| k == MessageKind::Imu,
-                )?;
-                let samples: Vec<ImuSample> = kept
-                    .iter()
-                    .filter(|k| channels[k.channel].info.topic == topic)
-                    .map(|k| {
-                        decode_imu_message(encoding, &k.data)
-                            .map_err(|e| log_error(&k.file, Some(&topic), e))
-                    })
-                    .collect::<Result<_>>()?;
-                Some(ImuSeries::new(samples))
-            }
+            Some(requested) => Some(imu_series(path, &channels, &kept, requested)?),
         };
         Ok(Self {
             path: path.to_path_buf(),
@@ -483,6 +426,97 @@ impl FirstPass {
             fault: None,
         }
     }
+}
+
+/// The odometry trajectory from a TUM file or the odometry topic among the kept messages
+/// (`kept` = channel table and messages of the first pass); an error naming the topic and
+/// the log's damage (`fault_text`) when it is empty.
+fn odometry_trajectory(
+    path: &Path,
+    opts: &ScanStreamOptions,
+    (channels, kept): (&[ChannelInfo], &[KeptMessage]),
+    message_errors: &mut Vec<String>,
+    fault_text: Option<String>,
+) -> Result<Trajectory> {
+    let mut odometry_topic = None;
+    let trajectory = match &opts.odometry {
+        OdometrySource::Tum(tum) => Trajectory::new(read_tum(tum)?, opts.gap_periods),
+        OdometrySource::Topic(requested) => {
+            let topic = resolve_topic(
+                path,
+                channels,
+                requested.as_deref(),
+                "odometry (Odometry, PoseStamped, TransformStamped or TFMessage)",
+                MessageKind::is_odometry,
+            )?;
+            let samples = odometry_samples(&topic, channels, kept, message_errors);
+            let chain = single_transform_chain(path, &topic.0, samples)?;
+            odometry_topic = Some(topic.0);
+            Trajectory::new(chain, opts.gap_periods)
+        }
+    };
+    if trajectory.is_empty() {
+        let reason = match fault_text {
+            Some(fault) => {
+                format!("odometry topic has no messages before the log's damage: {fault}")
+            }
+            None => "odometry topic has no messages".to_string(),
+        };
+        return Err(log_error(path, odometry_topic.as_deref(), reason));
+    }
+    Ok(trajectory)
+}
+
+/// The pose samples of the odometry `topic` (name, kind, encoding) among the kept messages,
+/// in record order. A message that does not decode is left out and named in `errors` (the
+/// interval it leaves becomes a gap if it is long).
+fn odometry_samples(
+    topic: &(String, MessageKind, Encoding),
+    channels: &[ChannelInfo],
+    kept: &[KeptMessage],
+    errors: &mut Vec<String>,
+) -> Vec<PoseSample> {
+    let (name, kind, encoding) = topic;
+    let mut samples: Vec<PoseSample> = Vec::new();
+    for k in kept
+        .iter()
+        .filter(|k| channels[k.channel].info.topic == *name)
+    {
+        match decode_poses(*kind, *encoding, &k.data) {
+            Ok(decoded) => samples.extend(decoded),
+            Err(e) if errors.len() < MAX_MESSAGE_ERRORS => {
+                let at = k.log_time as f64 * 1e-9;
+                let reason = format!("message at log time {at:.9} s: {e}");
+                errors.push(log_error(&k.file, Some(name), reason).to_string());
+            }
+            Err(_) => {}
+        }
+    }
+    samples
+}
+
+/// The IMU series of the `requested` topic among the kept messages.
+fn imu_series(
+    path: &Path,
+    channels: &[ChannelInfo],
+    kept: &[KeptMessage],
+    requested: &str,
+) -> Result<ImuSeries> {
+    let (topic, _, encoding) = resolve_topic(
+        path,
+        channels,
+        Some(requested),
+        "IMU (sensor_msgs/Imu)",
+        |k| k == MessageKind::Imu,
+    )?;
+    let samples: Vec<ImuSample> = kept
+        .iter()
+        .filter(|k| channels[k.channel].info.topic == topic)
+        .map(|k| {
+            decode_imu_message(encoding, &k.data).map_err(|e| log_error(&k.file, Some(&topic), e))
+        })
+        .collect::<Result<_>>()?;
+    Ok(ImuSeries::new(samples))
 }
 
 /// A TFMessage topic can carry several frame pairs; odometry must be one chain
