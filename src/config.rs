@@ -57,6 +57,12 @@ pub struct SubmapConfig {
     /// 16-59 % to 61-68 %. Absent from a stored config: false.
     #[serde(default)]
     pub rebuild_on_correction: bool,
+    /// An odometry interval longer than this many of the odometry's median periods is a gap
+    /// (a restarted LIO, a dropout): no pose is interpolated across it, its scans are left out
+    /// of submaps and no submap spans it (issue 11). 5 periods is 0.5 s for 10 Hz odometry,
+    /// far above the jitter of a recorder, far below what a LIO restart costs. `0` turns gap
+    /// detection off (interpolate across anything, the behaviour before issue 11).
+    pub odometry_gap_periods: f64,
 }
 
 /// Corridor axis by PCA (paper §III-A).
@@ -381,6 +387,7 @@ impl DecodConfig {
                 max_range_m: 12.0,
                 min_points: 500,
                 rebuild_on_correction: true,
+                odometry_gap_periods: 5.0,
             },
             axis: AxisConfig {
                 min_elongation: 2.0,
@@ -662,6 +669,13 @@ impl DecodConfig {
                     "out of range (see `decod dump-config` for the defaults)",
                 ));
             }
+        }
+        let gap = self.submap.odometry_gap_periods;
+        if !(gap.is_finite() && (gap == 0.0 || gap > 1.0)) {
+            return Err(DecodError::config(
+                "submap.odometry_gap_periods",
+                format!("{gap} must be 0 (no gap detection) or above 1 median period"),
+            ));
         }
         if self.submap.scans_per_submap == 0 {
             return Err(DecodError::config(

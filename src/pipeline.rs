@@ -59,7 +59,13 @@ impl LogProcessor {
     ) -> Result<Self> {
         config.validate()?;
         Ok(Self {
-            stream: ScanStream::open(path, options)?,
+            stream: ScanStream::open(
+                path,
+                &ScanStreamOptions {
+                    gap_periods: config.submap.odometry_gap_periods,
+                    ..options.clone()
+                },
+            )?,
             builder: SubmapBuilder::new(&config.submap),
             config: config.clone(),
             batch: batch.max(1),
@@ -87,14 +93,28 @@ impl LogProcessor {
     }
 
     /// Reads scans until `batch` submaps are complete (or the log ends), extracts them in
-    /// parallel and returns them in time order; `None` once everything is processed. An error
-    /// mid-log (corrupt chunk) is returned after the submaps completed before it were
-    /// returned by earlier steps; the scan poses read so far stay available.
+    /// parallel and returns them in time order; `None` once everything is processed. Damage
+    /// to the log (a cut-off file, a corrupt chunk) and undecodable clouds do not stop it:
+    /// they are recorded by the stream ([`Self::stream`]); a file that is not a log is an
+    /// error, returned after the submaps completed before it.
     pub fn step(&mut self) -> Result<Option<Vec<ProcessedSubmap>>> {
         while !self.stream_done && self.pending.len() < self.batch {
             match self.stream.next() {
-                Some(scan) => {
-                    let scan = scan?;
+                // An undecodable cloud is counted and named by the stream; only a file that
+                // is not a log (the stream then ends) stops the run.
+                Some(Err(e)) if self.stream.is_finished() => return Err(e),
+                Some(Err(_)) => {}
+                Some(Ok(scan)) => {
+                    // A submap never spans an odometry gap: the window before it is closed.
+                    let crosses = self
+                        .scan_stamps
+                        .last()
+                        .is_some_and(|&previous| self.stream.gap_between(previous, scan.stamp));
+                    if crosses {
+                        if let Some(submap) = self.builder.finish()? {
+                            self.pending.push(submap);
+                        }
+                    }
                     self.scan_stamps.push(scan.stamp);
                     self.scan_poses.push(scan.world_from_body);
                     if let Some(submap) = self.builder.push(scan)? {
@@ -147,6 +167,11 @@ impl LogProcessor {
                 })
                 .collect(),
         ))
+    }
+
+    /// The scan stream: faults, gaps, skipped and unusable clouds so far.
+    pub fn stream(&self) -> &ScanStream {
+        &self.stream
     }
 
     /// Stamps of every scan read so far (odometry-paired), seconds.

@@ -538,12 +538,11 @@ def test_truncated_file_keeps_earlier_scans(tmp_path):
     log, clouds = ros1_log(tmp_path, n_clouds=10, chunk_size=4096)
     raw = log.read_bytes()
     log.write_bytes(raw[: int(len(raw) * 0.6)])
-    scans, error = [], None
-    try:
-        scans.extend(decod_rs.read_log(log, odom_tum=None))
-    except decod_rs.LogFormatError as exc:
-        error = str(exc)
-    assert error is not None and "r1.mcap" in error and "/velodyne_points" in error, error
+    reader = decod_rs.read_log(log, odom_tum=None)
+    with pytest.warns(decod_rs.LogWarning, match=r"r1\.mcap: truncated at byte"):
+        scans = list(reader)
+    (fault,) = reader.health.faults
+    assert fault.kind == "truncated" and fault.offset < len(raw) * 0.6
     assert 0 < len(scans) < len(clouds)
     for s in scans:
         np.testing.assert_array_equal(s.points, clouds[min(clouds, key=lambda c: abs(c - s.stamp))])
@@ -553,7 +552,7 @@ def test_truncated_file_keeps_earlier_scans(tmp_path):
         decod_rs.check_log(log)
 
 
-def test_corrupt_chunk_crc(tmp_path):
+def test_corrupt_chunk_crc_is_skipped_and_reading_goes_on(tmp_path):
     log, clouds = ros1_log(tmp_path, n_clouds=10, chunk_size=4096)
     raw = bytearray(log.read_bytes())
     victim = clouds[sorted(clouds)[6]].tobytes()[:12]  # x y z of the 7th cloud's first point
@@ -562,11 +561,17 @@ def test_corrupt_chunk_crc(tmp_path):
     raw[at] ^= 0xFF
     log.write_bytes(bytes(raw))
     reader = decod_rs.read_log(log, odom="/odom")
-    got = []
-    with pytest.raises(decod_rs.LogFormatError, match=r"r1\.mcap \[topic /velodyne_points\].*CRC"):
-        got.extend(reader)
-    assert 0 < len(got) <= 6
-    assert list(reader) == []  # the stream ended
+    with pytest.warns(
+        decod_rs.LogWarning, match=r"r1\.mcap: corrupt at byte \d+: chunk skipped: CRC"
+    ):
+        got = list(reader)
+    (fault,) = reader.health.faults
+    assert fault.lost_span_s is not None and fault.messages_lost is not None
+    # Only the corrupt chunk's clouds are lost; the 7th cloud is among them, the last is not.
+    stamps = sorted(clouds)
+    assert stamps[6] not in [s.stamp for s in got] and len(got) >= 7
+    assert got[-1].stamp == pytest.approx(stamps[-1])
+    assert fault.lost_span_s[0] <= stamps[6] <= fault.lost_span_s[1]
 
 
 def test_unknown_ambiguous_and_unsupported_topics(tmp_path):
@@ -734,18 +739,22 @@ def test_ros1_tf_message_odometry_needs_one_chain(tmp_path):
         decod_rs.read_log(log, odom="/tf")
 
 
-def test_not_an_mcap_and_empty_logs(tmp_path):
+def test_not_a_log_and_empty_logs(tmp_path):
     bag = tmp_path / "in.bag"
-    bag.write_bytes(b"#ROSBAG V2.0\n" + bytes(200))
-    with pytest.raises(decod_rs.LogFormatError, match=r"in\.bag: not an MCAP file.*decod convert"):
+    bag.write_bytes(b"#ROSBAG V1.2\n" + bytes(200))
+    with pytest.raises(decod_rs.LogFormatError, match=r"in\.bag: ROS bag version .*V1\.2"):
         decod_rs.read_log(bag)
+    text = tmp_path / "notes.mcap"
+    text.write_bytes(b"hello, this is not a log")
+    with pytest.raises(decod_rs.LogFormatError, match=r"notes\.mcap: not an MCAP file"):
+        decod_rs.read_log(text)
     empty = tmp_path / "empty.mcap"
     empty.write_bytes(b"")
     with pytest.raises(decod_rs.LogFormatError, match=r"empty\.mcap: truncated"):
         decod_rs.read_log(empty)
     (tmp_path / "bag2").mkdir()
     (tmp_path / "bag2" / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
-    with pytest.raises(decod_rs.LogFormatError, match=r"bag2: no \.mcap file.*sqlite3"):
+    with pytest.raises(decod_rs.LogFormatError, match=r"bag2: no \.mcap or \.db3 file"):
         decod_rs.read_log(tmp_path / "bag2")
 
 

@@ -141,3 +141,8 @@ from decod_rs.matching import (
 )
 
 __all__ += ["LandmarkDatabase", "PairResult", "QueryResult", "compare", "synthetic_landmark"]
+
+# Real logs as they come (issue 11): damage, odometry gaps, unusable clouds.
+from decod_rs.ingest import LogFaultInfo, LogWarning, StreamHealth
+
+__all__ += ["LogFaultInfo", "LogWarning", "StreamHealth"]

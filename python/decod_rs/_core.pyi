@@ -171,6 +171,19 @@ def extract_submaps(submaps: list[Submap], config_json: str) -> list[ExtractionR
 
 import numpy.typing as npt  # noqa: E402
 
+# (file, kind, offset, reason, last_complete_s, lost_span_s, messages_lost, message)
+_FaultRow = tuple[str, str, int, str, float | None, tuple[float, float] | None, int | None, str]
+# (faults, gaps (start, end, kind), skipped in gaps, out of order (stamp, previous),
+#  (messages, undecodable, zero_size, empty, non_finite_points, out_of_order), errors)
+_HealthRow = tuple[
+    list[_FaultRow],
+    list[tuple[float, float, str]],
+    list[float],
+    list[tuple[float, float]],
+    tuple[int, int, int, int, int, int],
+    list[str],
+]
+
 @final
 class _ScanReader:
     def __iter__(self) -> _ScanReader: ...
@@ -185,6 +198,7 @@ class _ScanReader:
     def skipped_outside_odometry(self) -> list[float]: ...
     def total_scans_hint(self) -> int: ...
     def dropped_non_finite_points(self) -> int: ...
+    def health(self) -> _HealthRow: ...
     def points_topic(self) -> str: ...
     def odometry(self) -> npt.NDArray[np.float64]: ...
 
@@ -194,6 +208,7 @@ def open_scan_stream(
     odom: str | None = None,
     odom_tum: str | None = None,
     imu: str | None = None,
+    gap_periods: float = 5.0,
 ) -> _ScanReader: ...
 def inspect_log(
     path: str,
@@ -349,6 +364,7 @@ class LogProcessor:
     def points_topic(self) -> str: ...
     @property
     def skipped_outside_odometry(self) -> list[float]: ...
+    def health(self) -> _HealthRow: ...
     def scan_stamps(self) -> NDArray[np.float64]: ...
     def scan_poses(self) -> NDArray[np.float64]: ...
     @property

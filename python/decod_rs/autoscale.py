@@ -49,6 +49,7 @@ from __future__ import annotations
 import json
 import math
 import tomllib
+import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -58,6 +59,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs.config import Config
+from decod_rs.ingest import LogWarning
 from decod_rs.io import read_log
 
 FloatArray = NDArray[np.float64]
@@ -141,10 +143,13 @@ def probe_corridor(
     """Measure the corridor from the first scans of ``log`` (module docs, steps 1-3)."""
     reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic)
     scans = []
-    for k, rec in enumerate(reader):
-        scans.append(rec)
-        if k + 1 >= PROBE_MAX_SCANS:
-            break
+    with warnings.catch_warnings():
+        # A damaged log is reported once, by the run that follows (decod_rs.ingest).
+        warnings.simplefilter("ignore", LogWarning)
+        for k, rec in enumerate(reader):
+            scans.append(rec)
+            if k + 1 >= PROBE_MAX_SCANS:
+                break
     if len(scans) < PROBE_SCANS:
         raise ValueError(
             f"{log}: auto configuration needs >= {PROBE_SCANS} scans, got {len(scans)}"

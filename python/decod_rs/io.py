@@ -1,12 +1,15 @@
 """Reading logs: scans paired with odometry, log summaries, TUM files.
 
-The Rust core (``decod::io``) decodes ROS 2 (CDR) and ROS 1 messages from MCAP files and
-rosbag2 directories natively; this module gives it a typed, streaming Python face.
+The Rust core (``decod::io``) decodes ROS 2 (CDR) and ROS 1 messages from MCAP files, ROS 1
+``.bag`` files (format 2.0; chunks uncompressed, bz2 or lz4), rosbag2 sqlite3 ``.db3`` files
+and rosbag2 directories (MCAP or sqlite3 storage) natively; this module gives it a typed,
+streaming Python face. A damaged log is read as far as it goes (:mod:`decod_rs.ingest`).
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from decod_rs import _core
+from decod_rs.ingest import LogWarning, StreamHealth
 
 PathLike = str | os.PathLike[str]
 
@@ -40,20 +44,37 @@ class ScanRecord:
 class ScanReader(Iterator[ScanRecord]):
     """Streams :class:`ScanRecord` from a log, one cloud decoded per step (GIL released).
 
-    Memory is bounded by one MCAP chunk plus one cloud, not by the log. Errors name the file
-    and topic: a bad message raises and the next ``next()`` goes on; a truncated or corrupt
-    log raises once and ends the iteration (scans already yielded stay valid).
+    Memory is bounded by one chunk plus one cloud, not by the log. Errors name the file,
+    topic and log time: a bad message raises ``LogFormatError`` and the next ``next()`` goes
+    on. Damage to the log itself does not raise: every complete message before a cut is
+    read, a corrupt chunk is skipped, and at the end one :class:`~decod_rs.ingest.LogWarning`
+    says what was lost (:attr:`health` has the details). Clouds inside an odometry gap or
+    stamped out of order are left out (:attr:`health`).
     """
 
     def __init__(self, inner: _core._ScanReader) -> None:
         self._inner = inner
+        self._warned = False
 
     def __iter__(self) -> ScanReader:
         return self
 
     def __next__(self) -> ScanRecord:
-        stamp, points, pose, force = next(self._inner)
+        try:
+            stamp, points, pose, force = next(self._inner)
+        except StopIteration:
+            faults = self.health.faults
+            if faults and not self._warned:
+                self._warned = True
+                text = "; ".join(f.message for f in faults)
+                warnings.warn(f"partial log: {text}", LogWarning, stacklevel=2)
+            raise
         return ScanRecord(stamp=stamp, points=points, pose=pose, specific_force=force)
+
+    @property
+    def health(self) -> StreamHealth:
+        """Damage, odometry gaps and clouds left out so far."""
+        return StreamHealth.from_core(self._inner.health())
 
     @property
     def points_topic(self) -> str:
@@ -86,8 +107,10 @@ def read_log(
     odom: str | None = None,
     odom_tum: PathLike | None = None,
     imu: str | None = None,
+    gap_periods: float = 5.0,
 ) -> ScanReader:
-    """Streams the scans of a ``.mcap`` file or rosbag2 directory with their poses.
+    """Streams the scans of a log (``.mcap``, ROS 1 ``.bag``, ``.db3`` or a rosbag2
+    directory) with their poses.
 
     Args:
         path: the log.
@@ -97,6 +120,8 @@ def read_log(
         odom_tum: a TUM file to take odometry from instead of a topic.
         imu: sensor_msgs/Imu topic for the specific force; ``None`` = no IMU
             (:func:`find_imu_topic` finds the unique one).
+        gap_periods: odometry intervals longer than this many median periods are gaps: no
+            pose is interpolated inside (``submap.odometry_gap_periods``; 0: no gaps).
 
     Raises:
         TopicError: a topic is missing or ambiguous (the message lists candidates).
@@ -105,7 +130,7 @@ def read_log(
         FileNotFoundError: the log or TUM file does not exist.
     """
     tum = None if odom_tum is None else os.fspath(odom_tum)
-    inner = _core.open_scan_stream(os.fspath(path), points, odom, tum, imu)
+    inner = _core.open_scan_stream(os.fspath(path), points, odom, tum, imu, gap_periods)
     return ScanReader(inner)
 
 
@@ -124,7 +149,7 @@ class LogInfo:
     """What a log holds (``decod inspect``).
 
     Attributes:
-        files: the MCAP files read.
+        files: the files read.
         topics: topics sorted by name.
         start, end: log time of the first/last message, seconds (``None`` when empty).
         problem: why counts may be partial (truncated or corrupt file without summary).
@@ -150,7 +175,8 @@ class LogInfo:
 
 
 def inspect_log(path: PathLike) -> LogInfo:
-    """Topics, types, encodings, counts and time span of a ``.mcap`` file or rosbag2 dir."""
+    """Topics, types, encodings, counts and time span of a log (``.mcap``, ``.bag``,
+    ``.db3`` or a rosbag2 directory), from its index when it has one."""
     files, topics, start, end, problem = _core.inspect_log(os.fspath(path))
     return LogInfo(
         files=[Path(f) for f in files],
@@ -188,7 +214,8 @@ class TopicCheck:
 
 def check_log(path: PathLike) -> list[TopicCheck]:
     """Reads and decodes every message of a log (chunk CRCs checked); raises
-    LogFormatError on a truncated or corrupt log, reports decode failures per topic."""
+    LogFormatError on a truncated or corrupt log (after reading all of it), reports decode
+    failures per topic."""
     return [TopicCheck(*row) for row in _core.check_log(os.fspath(path))]
 
 

@@ -31,6 +31,7 @@ from decod_rs.config import Config, load_config
 from decod_rs.disambiguation import CorrectedFrame, near_loops, resolve_with_prior
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
+from decod_rs.ingest import StreamHealth, ingest_section, warn_once
 from decod_rs.io import find_imu_topic
 from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
@@ -38,7 +39,13 @@ from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, resca
 from decod_rs.progress import Progress
 from decod_rs.refinement import rebuild_decision
 from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
-from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
+from decod_rs.run_files import (
+    LandmarkTable,
+    LoopTable,
+    staged_run_dir,
+    write_landmarks_csv,
+    write_loops_csv,
+)
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
 from decod_rs.tracks import group_views
@@ -359,6 +366,7 @@ def _optimise(
     constraints: list[LoopConstraint],
     seq: SequentialFactors | None,
     cfg: Config,
+    gap_factors: FloatArray | None = None,
 ) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
     """The pose graph, started from the odometry rescaled by the tracked boundaries
     (:mod:`decod_rs.odometry_scale`) when there are sequential factors; also returns the
@@ -376,6 +384,8 @@ def _optimise(
         # X* = X_odom if L is empty"); a few sequential factors alone only add noise.
         constraints = []
     factors = None if scale is None else odometry_sigma_factors(scans[0], scale, split)
+    if gap_factors is not None:  # odometry gaps bridged by a weak factor (decod_rs.ingest)
+        factors = gap_factors if factors is None else factors * gap_factors
     correction = correct_trajectory(
         scans[0], start, anchor_stamps, constraints, cfg.graph, sigma_factors=factors
     )
@@ -399,6 +409,7 @@ def _solve(
     cfg: Config,
     scans: tuple[FloatArray, FloatArray],
     loops: bool,
+    gap_factors: FloatArray | None = None,
 ) -> tuple[_Matched, _Solved]:
     """Factors and optimisation; then ambiguous queries placed by the corrected trajectory
     and, if any became loops, factors and optimisation again (stage 3b); then, one at a
@@ -406,9 +417,8 @@ def _solve(
 
     def solve(matched: _Matched) -> _Solved:
         constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
-        return _Solved(
-            constraints, seq, *_optimise(scans, ex, matched.split, constraints, seq, cfg)
-        )
+        optimised = _optimise(scans, ex, matched.split, constraints, seq, cfg, gap_factors)
+        return _Solved(constraints, seq, *optimised)
 
     solved = solve(matched)
     if loops and cfg.matching.resolve_with_prior:
@@ -526,7 +536,6 @@ def run_log(
 
         require_rerun()  # fail before the run, not after it
     log, out = Path(log), Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
@@ -545,23 +554,24 @@ def run_log(
         np.asarray(processor.scan_stamps(), dtype=np.float64),
         np.asarray(processor.scan_poses(), dtype=np.float64),
     )
+    health = StreamHealth.from_core(processor.health())
+    warn_once(log, health)  # damage, gaps: the run goes on with what the log holds
     if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
-
-    head = {"preset": preset, "auto": auto, "imu_topic": imu_topic}
-    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
-    return finish_run(
-        Extracted(log, processor, ex, scans, imu_topic),
-        out,
-        cfg,
-        mode,
-        loops,
-        plots,
-        timings,
-        head,
-        visuals,
-        progress,
+    ingest, gap_factors = ingest_section(
+        health, processor.points_topic, scans, float(cfg.submap.odometry_gap_periods)
     )
+
+    head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}
+    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
+    extraction = Extracted(log, processor, ex, scans, gap_factors, imu_topic)
+    # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
+    with staged_run_dir(out) as staging:
+        summary = finish_run(
+            extraction, staging, cfg, mode, loops, plots, timings, head, visuals, progress
+        )
+    summary.out_dir = out
+    return summary
 
 
 @dataclass(frozen=True)
@@ -573,6 +583,7 @@ class Extracted:
     processor: _core.LogProcessor
     extracted: _Extracted
     scans: tuple[FloatArray, FloatArray]
+    gap_factors: FloatArray | None = None
     imu_topic: str | None = None
 
 
@@ -605,7 +616,7 @@ def finish_run(
     timings["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    matched, solved = _solve(ex, matched, cfg, scans, loops)
+    matched, solved = _solve(ex, matched, cfg, scans, loops, extraction.gap_factors)
     timings["optimise"] = time.perf_counter() - t0
 
     rebuild = None
@@ -615,7 +626,7 @@ def finish_run(
         if rebuild.needed:
             ex = _rebuild(extraction, cfg, solved.correction.poses, progress)
             matched = _match_and_select(ex, cfg, mode, *scans)
-            matched, solved = _solve(ex, matched, cfg, scans, loops)
+            matched, solved = _solve(ex, matched, cfg, scans, loops, extraction.gap_factors)
         timings["rebuild"] = time.perf_counter() - t0
     constraints, seq, correction = solved.constraints, solved.seq, solved.correction
     scale, start = solved.scale, solved.start
@@ -705,6 +716,7 @@ def _report(
         "counts": {
             "scans": summary.scans,
             "skipped_outside_odometry": len(processor.skipped_outside_odometry),
+            "skipped_in_odometry_gaps": len(processor.health()[2]),
             "submaps": summary.submaps,
             "landmarks": summary.landmarks,
             "tracks": int(np.unique(matched.tracks).size),

@@ -10,12 +10,19 @@ with no candidate may leave the candidate fields empty (read as NaN, never accep
 origin_z``; optional ``axis_x, axis_y, axis_z`` (NaN when absent), ``radius_m``,
 ``chainage_m``; other columns are ignored. ``LANDMARKS_COLUMNS`` is what ``write_landmarks_csv``
 writes. Origins and axes are in the body frame of the submap's anchor scan at ``stamp``.
+
+A run writes into ``NAME.partial`` beside its directory and publishes at the end
+(:func:`staged_run_dir`), so an interrupted run never leaves a directory that looks finished:
+``report.json`` appears in ``NAME`` only with every other file of the run beside it.
 """
 
 from __future__ import annotations
 
 import csv
-from collections.abc import Sequence
+import os
+import shutil
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +57,7 @@ __all__ = [
     "loops_to_constraints",
     "read_landmarks_csv",
     "read_loops_csv",
+    "staged_run_dir",
     "write_landmarks_csv",
     "write_loops_csv",
 ]
@@ -263,3 +271,37 @@ def loops_to_constraints(
             )
         )
     return out
+
+
+#: Suffix of the directory a run writes into before it is published.
+PARTIAL_SUFFIX = ".partial"
+
+
+def _publish(staging: Path, out: Path) -> None:
+    """Moves every entry of ``staging`` into ``out``, ``report.json`` last; entries of
+    ``out`` with other names (the user's, ``error.txt`` of a batch) are left alone."""
+    if not out.exists():
+        os.replace(staging, out)  # one atomic rename
+        return
+    entries = sorted(staging.iterdir(), key=lambda p: p.name == "report.json")
+    for entry in entries:
+        target = out / entry.name
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        os.replace(entry, target)
+    staging.rmdir()
+
+
+@contextmanager
+def staged_run_dir(out: Path) -> Iterator[Path]:
+    """A fresh ``OUT.partial`` directory beside ``out`` to write a run into, published into
+    ``out`` when the block completes (:func:`_publish`). If the block raises (an exception,
+    Ctrl-C), ``OUT.partial`` stays as it is, clearly incomplete, and ``out`` is untouched: a
+    previous complete run there stays complete. A stale ``OUT.partial`` is cleared first."""
+    out = Path(out)
+    staging = out.with_name(out.name + PARTIAL_SUFFIX)
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir(parents=True)
+    yield staging
+    _publish(staging, out)

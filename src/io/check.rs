@@ -4,8 +4,9 @@
 
 use std::path::Path;
 
-use super::log::{MessageSource, log_files};
+use super::log::log_files;
 use super::messages::{MessageKind, decode_cloud, decode_imu_message, decode_poses};
+use super::source::MessageSource;
 use super::wire::Encoding;
 use crate::error::Result;
 
@@ -29,23 +30,20 @@ pub struct TopicCheck {
 }
 
 /// Reads and decodes every message of the log at `path`. A fault of the log itself
-/// (truncation, corrupt chunk) is an error naming the file; decode failures are counted per
+/// (truncation, corrupt chunk) is an error naming the file (the first fault, after reading
+/// everything); decode failures are counted per
 /// topic with the first one kept.
 pub fn check(path: &Path) -> Result<Vec<TopicCheck>> {
     let mut topics: Vec<TopicCheck> = Vec::new();
-    for msg in MessageSource::new(log_files(path)?) {
+    let mut source = MessageSource::new(log_files(path)?);
+    for msg in source.by_ref() {
         let msg = msg?;
         let idx = match topics.iter().position(|t| t.topic == msg.channel.topic) {
             Some(i) => i,
             None => {
-                let message_type = msg
-                    .channel
-                    .schema
-                    .as_ref()
-                    .map(|s| s.name.clone())
-                    .unwrap_or_default();
+                let message_type = msg.channel.message_type.clone();
                 let supported = MessageKind::from_type(&message_type).is_some()
-                    && Encoding::from_mcap(&msg.channel.message_encoding).is_some();
+                    && Encoding::from_mcap(&msg.channel.encoding).is_some();
                 topics.push(TopicCheck {
                     topic: msg.channel.topic.clone(),
                     message_type,
@@ -61,7 +59,7 @@ pub fn check(path: &Path) -> Result<Vec<TopicCheck>> {
         let entry = &mut topics[idx];
         entry.messages += 1;
         let kind = MessageKind::from_type(&entry.message_type);
-        let encoding = Encoding::from_mcap(&msg.channel.message_encoding);
+        let encoding = Encoding::from_mcap(&msg.channel.encoding);
         let (Some(kind), Some(encoding)) = (kind, encoding) else {
             continue;
         };
@@ -85,6 +83,9 @@ pub fn check(path: &Path) -> Result<Vec<TopicCheck>> {
             }
             Err(_) => {}
         }
+    }
+    if let Some(fault) = source.faults().first() {
+        return Err(fault.to_error(None));
     }
     topics.sort_by(|a, b| a.topic.cmp(&b.topic));
     Ok(topics)

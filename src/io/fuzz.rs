@@ -1,9 +1,12 @@
-//! Proptest fuzz of the message decoders: arbitrary bytes, in both encodings and for every
-//! message kind, give `Ok` or `Err`, never a panic (bounded cases so it runs in seconds).
+//! Proptest fuzz of the message decoders and the container readers: arbitrary bytes, in both
+//! encodings and for every message kind, or after each container's magic, give `Ok`, `Err`
+//! or faults, never a panic (bounded cases so it runs in seconds; `examples/fuzz_logs.rs`
+//! mutates real logs for minutes).
 
 use proptest::prelude::*;
 
 use super::messages::{MessageKind, decode_cloud, decode_imu_message, decode_poses};
+use super::source::{Container, MessageSource};
 use super::wire::Encoding;
 
 const KINDS: [MessageKind; 7] = [
@@ -78,5 +81,25 @@ proptest! {
         }
         data.truncate(cut.max(4));
         decode_any(MessageKind::PointCloud2, Encoding::Cdr, &data);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 2_000, ..ProptestConfig::default() })]
+
+    #[test]
+    fn arbitrary_container_bytes_never_panic(body in proptest::collection::vec(any::<u8>(), 0..1024),
+                                             which in 0usize..2) {
+        let (magic, container, ext): (&[u8], Container, &str) = match which {
+            0 => (super::mcap_file::MCAP_MAGIC, Container::Mcap, "mcap"),
+            _ => (super::bag::BAG_MAGIC, Container::Bag, "bag"),
+        };
+        let dir = std::env::temp_dir().join(format!("decod-fuzz-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("input-{:?}.{ext}", std::thread::current().id()));
+        std::fs::write(&path, [magic, &body].concat()).unwrap();
+        let mut source = MessageSource::new(vec![(path, container)]);
+        let read = source.by_ref().take(10_000).count();
+        prop_assert!(read < 10_000);
     }
 }

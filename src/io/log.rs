@@ -1,15 +1,16 @@
-//! Opening a log: a `.mcap` file or a rosbag2 directory (its `.mcap` files, in split order);
-//! channel table and summary (`decod inspect`); streaming messages in file order with memory
-//! bounded by one chunk (`mcap::io::MessageReader` over a buffered file, chunk CRCs checked).
+//! Opening a log: a `.mcap` file, a ROS 1 `.bag`, a `.db3` file or a rosbag2 directory (its
+//! `.mcap` or `.db3` files, in split order); the container is told by the file's first bytes.
+//! Channel table and summary (`decod inspect`) from each container's index when it has one.
+//! Messages are streamed by [`super::source::MessageSource`].
 
 use std::fs::File;
-use std::io::BufReader;
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
-use mcap::sans_io::LinearReaderOptions;
-
+use super::db3::SQLITE_MAGIC;
+use super::mcap_file::MCAP_MAGIC;
 use super::messages::normalize_type;
+use super::source::{ChannelMeta, Container, LogFault, MessageSource};
 use crate::error::{DecodError, Result};
 
 /// One topic of a log.
@@ -19,7 +20,7 @@ pub struct TopicInfo {
     pub topic: String,
     /// Schema (message type) name as written, e.g. `sensor_msgs/msg/PointCloud2`.
     pub message_type: String,
-    /// MCAP message encoding (`cdr`, `ros1`, ...).
+    /// Message encoding (`cdr`, `ros1`, ...).
     pub encoding: String,
     /// Messages on the topic.
     pub count: u64,
@@ -28,7 +29,7 @@ pub struct TopicInfo {
 /// What a log holds (`decod inspect`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LogSummary {
-    /// The MCAP files read (one, or the splits of a rosbag2 directory).
+    /// The files read (one, or the splits of a rosbag2 directory).
     pub files: Vec<PathBuf>,
     /// Topics sorted by name.
     pub topics: Vec<TopicInfo>,
@@ -38,6 +39,8 @@ pub struct LogSummary {
     pub end: Option<f64>,
     /// Why the counts may be partial (a file without summary that is truncated or corrupt).
     pub problem: Option<String>,
+    /// The damage met while counting (empty when the counts came from an index).
+    pub faults: Vec<LogFault>,
 }
 
 impl LogSummary {
@@ -68,18 +71,33 @@ fn io_error(path: &Path, source: std::io::Error) -> DecodError {
     }
 }
 
-/// The MCAP files of `path`: the file itself, or the `.mcap` files of a rosbag2 directory
-/// sorted by their split index (`name_0.mcap`, `name_1.mcap`, ..., `name_10.mcap`).
-pub fn log_files(path: &Path) -> Result<Vec<PathBuf>> {
-    let meta = std::fs::metadata(path).map_err(|e| io_error(path, e))?;
-    if meta.is_file() {
-        return Ok(vec![path.to_path_buf()]);
+/// The container of the file `path`, from its first bytes (the extension decides only for
+/// files too short or too damaged to tell, so that an empty `.mcap` reads as a cut-off MCAP).
+pub fn container_of(path: &Path) -> Result<Container> {
+    let mut head = [0u8; 16];
+    let n = File::open(path)
+        .and_then(|f| f.take(16).read(&mut head))
+        .map_err(|e| io_error(path, e))?;
+    let head = &head[..n];
+    if head.starts_with(MCAP_MAGIC) {
+        return Ok(Container::Mcap);
     }
-    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
-        .map_err(|e| io_error(path, e))?
-        .filter_map(|entry| entry.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
-        .collect();
+    if head.starts_with(b"#ROSBAG") {
+        return Ok(Container::Bag);
+    }
+    if head.starts_with(SQLITE_MAGIC) {
+        return Ok(Container::Db3);
+    }
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("bag") => Ok(Container::Bag),
+        Some("db3") => Ok(Container::Db3),
+        // The MCAP reader names what is wrong (cut-off magic, bad magic).
+        _ => Ok(Container::Mcap),
+    }
+}
+
+/// `name_0.ext`, `name_1.ext`, ..., `name_10.ext` in split order.
+fn sort_splits(files: &mut [PathBuf]) {
     let split_index = |p: &PathBuf| -> (u64, String) {
         let stem = p
             .file_stem()
@@ -93,119 +111,40 @@ pub fn log_files(path: &Path) -> Result<Vec<PathBuf>> {
         (idx, stem)
     };
     files.sort_by_key(split_index);
-    if files.is_empty() {
-        let hint = if path.join("metadata.yaml").exists() {
-            " (a rosbag2 directory with another storage, e.g. sqlite3: re-record or convert \
-             with MCAP storage)"
-        } else {
-            ""
-        };
-        return Err(log_error(
-            path,
-            None,
-            format!("no .mcap file in directory{hint}"),
-        ));
+}
+
+/// The files of the log `path` with their container: the file itself (`.mcap`, ROS 1
+/// `.bag`, `.db3`), or the `.mcap` (else `.db3`) files of a rosbag2 directory in split order.
+pub fn log_files(path: &Path) -> Result<Vec<(PathBuf, Container)>> {
+    let meta = std::fs::metadata(path).map_err(|e| io_error(path, e))?;
+    if meta.is_file() {
+        return Ok(vec![(path.to_path_buf(), container_of(path)?)]);
     }
-    Ok(files)
-}
-
-/// Streams every message of the files in order. Errors (truncation, corrupt chunk, bad
-/// record) name the file; after one the stream ends.
-pub struct MessageSource {
-    files: Vec<PathBuf>,
-    next_file: usize,
-    current: Option<(PathBuf, mcap::io::MessageReader<BufReader<File>>)>,
-    done: bool,
-}
-
-/// One message: its channel, log time (ns) and bytes.
-pub struct RawMessage {
-    /// Channel (topic, schema, encoding).
-    pub channel: Arc<mcap::Channel<'static>>,
-    /// Log time, nanoseconds.
-    pub log_time: u64,
-    /// Serialised message.
-    pub data: Vec<u8>,
-    /// File it came from.
-    pub file: usize,
-}
-
-/// Chunk or record size above which a file is refused rather than allocated (a corrupt length
-/// must not make us allocate gigabytes). 1 GiB is far above any real chunk (MB-sized).
-const RECORD_LENGTH_LIMIT: usize = 1 << 30;
-
-impl MessageSource {
-    /// A source over `files` (from [`log_files`]).
-    pub fn new(files: Vec<PathBuf>) -> Self {
-        Self {
-            files,
-            next_file: 0,
-            current: None,
-            done: false,
+    let entries: Vec<PathBuf> = std::fs::read_dir(path)
+        .map_err(|e| io_error(path, e))?
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .collect();
+    for (ext, container) in [("mcap", Container::Mcap), ("db3", Container::Db3)] {
+        let mut files: Vec<PathBuf> = entries
+            .iter()
+            .filter(|p| p.extension().is_some_and(|e| e == ext))
+            .cloned()
+            .collect();
+        if !files.is_empty() {
+            sort_splits(&mut files);
+            return Ok(files.into_iter().map(|f| (f, container)).collect());
         }
     }
-
-    /// The files read.
-    pub fn files(&self) -> &[PathBuf] {
-        &self.files
-    }
-}
-
-impl Iterator for MessageSource {
-    type Item = Result<RawMessage>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        while !self.done {
-            if self.current.is_none() {
-                let path = self.files.get(self.next_file)?.clone();
-                self.next_file += 1;
-                let file = match File::open(&path) {
-                    Ok(f) => f,
-                    Err(e) => {
-                        self.done = true;
-                        return Some(Err(io_error(&path, e)));
-                    }
-                };
-                let options = LinearReaderOptions::default()
-                    .with_validate_chunk_crcs(true)
-                    .with_record_length_limit(RECORD_LENGTH_LIMIT);
-                let reader = mcap::io::MessageReader::new_with_options(
-                    BufReader::with_capacity(1 << 20, file),
-                    options,
-                );
-                self.current = Some((path, reader));
-            }
-            let (path, reader) = self.current.as_mut()?;
-            match reader.next() {
-                Some(Ok(msg)) => {
-                    return Some(Ok(RawMessage {
-                        channel: msg.channel,
-                        log_time: msg.log_time,
-                        data: msg.data.into_owned(),
-                        file: self.next_file - 1,
-                    }));
-                }
-                Some(Err(e)) => {
-                    self.done = true;
-                    let reason = match e {
-                        mcap::McapError::BadChunkCrc { .. } => {
-                            format!("corrupt chunk (CRC mismatch): {e}")
-                        }
-                        mcap::McapError::BadMagic => "not an MCAP file (bad magic number); a \
-                                                       ROS 1 .bag needs `decod convert` first"
-                            .to_string(),
-                        mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc => {
-                            format!("truncated file: {e}")
-                        }
-                        _ => e.to_string(),
-                    };
-                    return Some(Err(log_error(path, None, reason)));
-                }
-                None => self.current = None,
-            }
-        }
-        None
-    }
+    let hint = if path.join("metadata.yaml").exists() {
+        " (a rosbag2 directory whose storage is neither MCAP nor sqlite3)"
+    } else {
+        ""
+    };
+    Err(log_error(
+        path,
+        None,
+        format!("no .mcap or .db3 file in directory{hint}"),
+    ))
 }
 
 fn secs(ns: u64) -> f64 {
@@ -220,68 +159,109 @@ fn summary_of_file(path: &Path) -> Result<Option<mcap::Summary>> {
     Ok(mcap::Summary::read(&map).ok().flatten())
 }
 
-/// Topics, types, encodings, counts and time span of a log, from the MCAP summary when every
-/// file has one, else by reading the messages (then a truncated or corrupt file gives partial
-/// counts and a `problem`, not an error).
+/// Adds `count` messages of a channel to `topics`.
+fn add_topic(topics: &mut Vec<TopicInfo>, channel: &ChannelMeta, count: u64) {
+    match topics.iter_mut().find(|t| t.topic == channel.topic) {
+        Some(t) => t.count += count,
+        None => topics.push(TopicInfo {
+            topic: channel.topic.clone(),
+            message_type: channel.message_type.clone(),
+            encoding: channel.encoding.clone(),
+            count,
+        }),
+    }
+}
+
+/// Topics and time span (ns) of one file.
+pub type FileSummary = (Vec<TopicInfo>, Option<u64>, Option<u64>);
+
+/// A file's summary from its container's index, `None` when it has no usable one (a
+/// cut-off MCAP, an unclosed bag).
+fn indexed_summary(path: &Path, container: Container) -> Result<Option<FileSummary>> {
+    match container {
+        Container::Db3 => super::db3::db3_summary(path).map(Some),
+        Container::Bag => super::bag::bag_summary(path),
+        Container::Mcap => {
+            let Some(summary) = summary_of_file(path)? else {
+                return Ok(None);
+            };
+            let Some(stats) = summary.stats.as_ref() else {
+                return Ok(None);
+            };
+            let mut topics = Vec::new();
+            for channel in summary.channels.values() {
+                let meta = ChannelMeta {
+                    topic: channel.topic.clone(),
+                    message_type: channel
+                        .schema
+                        .as_ref()
+                        .map(|s| s.name.clone())
+                        .unwrap_or_default(),
+                    encoding: channel.message_encoding.clone(),
+                };
+                let count = stats
+                    .channel_message_counts
+                    .get(&channel.id)
+                    .copied()
+                    .unwrap_or(0);
+                add_topic(&mut topics, &meta, count);
+            }
+            let span = (stats.message_count > 0)
+                .then_some((stats.message_start_time, stats.message_end_time));
+            Ok(Some((topics, span.map(|s| s.0), span.map(|s| s.1))))
+        }
+    }
+}
+
+/// Topics, types, encodings, counts and time span of a log, from the container's index
+/// (MCAP summary, bag index, sqlite3 tables) when every file has one, else by reading the
+/// messages (then a truncated or corrupt file gives partial counts, its `faults` and a
+/// `problem`, not an error).
 pub fn inspect(path: &Path) -> Result<LogSummary> {
     let files = log_files(path)?;
     let mut topics: Vec<TopicInfo> = Vec::new();
     let mut start: Option<u64> = None;
     let mut end: Option<u64> = None;
-    let mut problem = None;
-    let add = |channel: &mcap::Channel<'_>, count: u64, topics: &mut Vec<TopicInfo>| {
-        let message_type = channel
-            .schema
-            .as_ref()
-            .map(|s| s.name.clone())
-            .unwrap_or_default();
-        match topics.iter_mut().find(|t| t.topic == channel.topic) {
-            Some(t) => t.count += count,
-            None => topics.push(TopicInfo {
-                topic: channel.topic.clone(),
-                message_type,
-                encoding: channel.message_encoding.clone(),
-                count,
-            }),
-        }
+    let mut faults = Vec::new();
+    let mut widen = |t0: u64, t1: u64| {
+        start = Some(start.map_or(t0, |v| v.min(t0)));
+        end = Some(end.map_or(t1, |v| v.max(t1)));
     };
-    for file in &files {
-        match summary_of_file(file)? {
-            Some(summary) if summary.stats.is_some() => {
-                let stats = summary.stats.as_ref();
-                for channel in summary.channels.values() {
-                    let count = stats
-                        .and_then(|s| s.channel_message_counts.get(&channel.id).copied())
-                        .unwrap_or(0);
-                    add(channel, count, &mut topics);
-                }
-                if let Some(s) = stats.filter(|s| s.message_count > 0) {
-                    start =
-                        Some(start.map_or(s.message_start_time, |v| v.min(s.message_start_time)));
-                    end = Some(end.map_or(s.message_end_time, |v| v.max(s.message_end_time)));
-                }
+    for (file, container) in &files {
+        if let Some((rows, t0, t1)) = indexed_summary(file, *container)? {
+            for row in rows {
+                let meta = ChannelMeta {
+                    topic: row.topic,
+                    message_type: row.message_type,
+                    encoding: row.encoding,
+                };
+                add_topic(&mut topics, &meta, row.count);
             }
-            _ => {
-                for msg in MessageSource::new(vec![file.clone()]) {
-                    match msg {
-                        Ok(m) => {
-                            add(&m.channel, 1, &mut topics);
-                            start = Some(start.map_or(m.log_time, |v| v.min(m.log_time)));
-                            end = Some(end.map_or(m.log_time, |v| v.max(m.log_time)));
-                        }
-                        Err(e) => problem = Some(e.to_string()),
-                    }
-                }
+            if let (Some(t0), Some(t1)) = (t0, t1) {
+                widen(t0, t1);
             }
+            continue;
         }
+        let mut source = MessageSource::new(vec![(file.clone(), *container)]);
+        for msg in source.by_ref() {
+            let m = msg?;
+            add_topic(&mut topics, &m.channel, 1);
+            widen(m.log_time, m.log_time);
+        }
+        faults.extend_from_slice(source.faults());
     }
     topics.sort_by(|a, b| a.topic.cmp(&b.topic));
+    let problem = (!faults.is_empty()).then(|| {
+        let all: Vec<String> = faults.iter().map(ToString::to_string).collect();
+        all.join("; ")
+    });
     Ok(LogSummary {
-        files,
+        files: files.into_iter().map(|(f, _)| f).collect(),
         topics,
         start: start.map(secs),
         end: end.map(secs),
         problem,
+        faults,
     })
 }
 

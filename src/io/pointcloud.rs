@@ -225,7 +225,10 @@ pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
         && z.offset == 8;
     let mut points = Vec::with_capacity(width * height);
     let mut dropped = 0usize;
-    for row in 0..height {
+    // No point (width 0): no row is read, whatever height and row_step say (found by
+    // examples/fuzz_logs.rs: height 3, width 0 indexed past the data).
+    let rows = if row_bytes == 0 { 0 } else { height };
+    for row in 0..rows {
         let start = row * meta.row_step as usize;
         let row_data = &data[start..start + row_bytes];
         if fast {
@@ -386,6 +389,20 @@ mod tests {
             0,
         );
         assert!(decode_points(m, &[0; 12]).unwrap_err().contains("overruns"));
+    }
+
+    #[test]
+    fn zero_width_with_rows_is_an_empty_cloud() {
+        let mut m = meta(
+            vec![field("x", 0, 7), field("y", 4, 7), field("z", 8, 7)],
+            12,
+            0,
+            3,
+            0,
+        );
+        m.row_step = 640;
+        let c = decode_points(m, &[0; 640]).unwrap();
+        assert!(c.points.is_empty() && c.dropped_non_finite == 0);
     }
 
     #[test]

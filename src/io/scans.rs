@@ -12,9 +12,10 @@
 use std::path::{Path, PathBuf};
 
 use super::imu::{ImuSample, ImuSeries};
-use super::log::{MessageSource, TopicInfo, log_error, log_files};
+use super::log::{TopicInfo, log_error, log_files};
 use super::messages::{MessageKind, decode_cloud, decode_imu_message, decode_poses};
-use super::odometry::{PoseSample, Trajectory};
+use super::odometry::{DEFAULT_GAP_PERIODS, OdometryGap, PoseSample, Trajectory};
+use super::source::{LogFault, MessageSource};
 use super::tum::read_tum;
 use super::wire::Encoding;
 use crate::error::{DecodError, Result};
@@ -40,6 +41,9 @@ pub struct ScanStreamOptions {
     pub odometry: OdometrySource,
     /// IMU topic (sensor_msgs/Imu); `None` = no IMU (see [`find_imu_topic`]).
     pub imu_topic: Option<String>,
+    /// Odometry intervals longer than this many median periods are gaps, not interpolated
+    /// (`submap.odometry_gap_periods`; <= 0 turns gap detection off).
+    pub gap_periods: f64,
 }
 
 impl Default for ScanStreamOptions {
@@ -48,9 +52,30 @@ impl Default for ScanStreamOptions {
             points_topic: None,
             odometry: OdometrySource::Topic(None),
             imu_topic: None,
+            gap_periods: DEFAULT_GAP_PERIODS,
         }
     }
 }
+
+/// Messages the stream could not use, per points topic (`report.json` `clouds`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CloudStats {
+    /// Cloud messages read on the topic.
+    pub messages: u64,
+    /// Clouds that failed to decode (each yielded an error naming file, topic and time).
+    pub undecodable: u64,
+    /// Clouds with no point at all (`width * height == 0`).
+    pub zero_size: u64,
+    /// Clouds whose points were all NaN/inf (empty once those are dropped).
+    pub empty: u64,
+    /// Points dropped because a coordinate was NaN or infinite.
+    pub non_finite_points: u64,
+    /// Clouds stamped at or before the previous scan (left out, never reordered).
+    pub out_of_order: u64,
+}
+
+/// Most message errors kept per stream (the rest are counted in [`CloudStats`]).
+const MAX_MESSAGE_ERRORS: usize = 50;
 
 /// The unique sensor_msgs/Imu topic of the log, `None` if there is none, an error listing
 /// them if there are several.
@@ -156,6 +181,10 @@ pub struct ScanStream {
     imu: Option<ImuSeries>,
     total_scans: u64,
     skipped: Vec<f64>,
+    skipped_in_gaps: Vec<f64>,
+    out_of_order: Vec<(f64, f64)>,
+    stats: CloudStats,
+    message_errors: Vec<String>,
     dropped_non_finite: usize,
     previous_stamp: Option<f64>,
     finished: bool,
@@ -185,6 +214,7 @@ impl ScanStream {
             Some(summary) => FirstPass::from_summary(summary),
             None => FirstPass::read(&files),
         };
+        let mut message_errors = Vec::new();
         // A log that fails before its topics are seen: the fault is the error to report.
         let resolved = resolve_topic(
             path,
@@ -193,6 +223,7 @@ impl ScanStream {
             "point cloud (PointCloud2 or Livox CustomMsg)",
             MessageKind::is_points,
         );
+        let fault_text = first_pass_fault.as_ref().map(ToString::to_string);
         let (points_topic, points_kind, points_encoding) = match (resolved, first_pass_fault) {
             (Ok(r), _) => r,
             (Err(_), Some(fault)) => return Err(fault),
@@ -203,56 +234,16 @@ impl ScanStream {
             .find(|c| c.info.topic == points_topic)
             .map_or(0, |c| c.info.count);
 
-        let mut odometry_topic = None;
-        let trajectory = match &opts.odometry {
-            OdometrySource::Tum(tum) => Trajectory::new(read_tum(tum)?),
-            OdometrySource::Topic(requested) => {
-                let (topic, kind, encoding) = resolve_topic(
-                    path,
-                    &channels,
-                    requested.as_deref(),
-                    "odometry (Odometry, PoseStamped, TransformStamped or TFMessage)",
-                    MessageKind::is_odometry,
-                )?;
-                let mut samples: Vec<PoseSample> = Vec::new();
-                for (idx, data) in kept
-                    .iter()
-                    .filter(|(i, _)| channels[*i].info.topic == topic)
-                {
-                    let _ = idx;
-                    let decoded = decode_poses(kind, encoding, data)
-                        .map_err(|e| log_error(path, Some(&topic), e))?;
-                    samples.extend(decoded);
-                }
-                let trajectory = Trajectory::new(single_transform_chain(path, &topic, samples)?);
-                odometry_topic = Some(topic);
-                trajectory
-            }
-        };
-        if trajectory.is_empty() {
-            let reason = "odometry topic has no messages (before any fault in the log)";
-            return Err(log_error(path, odometry_topic.as_deref(), reason));
-        }
+        let trajectory = odometry_trajectory(
+            path,
+            opts,
+            (&channels, &kept),
+            &mut message_errors,
+            fault_text,
+        )?;
         let imu = match &opts.imu_topic {
             None => None,
-            Some(requested) => {
-                let (topic, _, encoding) = resolve_topic(
-                    path,
-                    &channels,
-                    Some(requested),
-                    "IMU (sensor_msgs/Imu)",
-                    |k| k == MessageKind::Imu,
-                )?;
-                let samples: Vec<ImuSample> = kept
-                    .iter()
-                    .filter(|(i, _)| channels[*i].info.topic == topic)
-                    .map(|(_, data)| {
-                        decode_imu_message(encoding, data)
-                            .map_err(|e| log_error(path, Some(&topic), e))
-                    })
-                    .collect::<Result<_>>()?;
-                Some(ImuSeries::new(samples))
-            }
+            Some(requested) => Some(imu_series(path, &channels, &kept, requested)?),
         };
         Ok(Self {
             path: path.to_path_buf(),
@@ -264,6 +255,10 @@ impl ScanStream {
             imu,
             total_scans,
             skipped: Vec::new(),
+            skipped_in_gaps: Vec::new(),
+            out_of_order: Vec::new(),
+            stats: CloudStats::default(),
+            message_errors,
             dropped_non_finite: 0,
             previous_stamp: None,
             finished: false,
@@ -295,6 +290,49 @@ impl ScanStream {
     pub fn dropped_non_finite_points(&self) -> usize {
         self.dropped_non_finite
     }
+
+    /// Whether the stream has ended (after `None` or a fatal error).
+    pub fn is_finished(&self) -> bool {
+        self.finished
+    }
+
+    /// Damage met in the log so far (cut-off file, corrupt chunks skipped).
+    pub fn faults(&self) -> &[LogFault] {
+        self.source.faults()
+    }
+
+    /// Odometry intervals not interpolated (gaps, backwards or duplicated stamps).
+    pub fn odometry_gaps(&self) -> &[OdometryGap] {
+        self.trajectory.gaps()
+    }
+
+    /// Whether an odometry gap lies between the scans stamped `t0 < t1` (a submap must not
+    /// span it).
+    pub fn gap_between(&self, t0: f64, t1: f64) -> bool {
+        self.trajectory.gap_between(t0, t1)
+    }
+
+    /// Stamps of the clouds left out so far because they fall inside an odometry gap.
+    pub fn skipped_in_gaps(&self) -> &[f64] {
+        &self.skipped_in_gaps
+    }
+
+    /// `(stamp, previous stamp)` of the clouds left out because they were stamped at or
+    /// before the previous scan.
+    pub fn out_of_order(&self) -> &[(f64, f64)] {
+        &self.out_of_order
+    }
+
+    /// Counts of unusable clouds and points on the points topic.
+    pub fn cloud_stats(&self) -> &CloudStats {
+        &self.stats
+    }
+
+    /// Messages that failed to decode (odometry and clouds), each naming file, topic and
+    /// log time; at most 50 kept.
+    pub fn message_errors(&self) -> &[String] {
+        &self.message_errors
+    }
 }
 
 /// What the first pass gathers: the channel table, the raw odometry/IMU messages (small) and
@@ -302,17 +340,26 @@ impl ScanStream {
 /// after yielding the scans before it.
 struct FirstPass {
     channels: Vec<ChannelInfo>,
-    kept: Vec<(usize, Vec<u8>)>,
+    kept: Vec<KeptMessage>,
     fault: Option<DecodError>,
+}
+
+/// An odometry or IMU message kept by the first pass.
+struct KeptMessage {
+    channel: usize,
+    file: PathBuf,
+    log_time: u64,
+    data: Vec<u8>,
 }
 
 impl FirstPass {
     /// Reads every message of `files`.
-    fn read(files: &[PathBuf]) -> Self {
+    fn read(files: &[(PathBuf, super::source::Container)]) -> Self {
         let mut channels: Vec<ChannelInfo> = Vec::new();
-        let mut kept: Vec<(usize, Vec<u8>)> = Vec::new();
+        let mut kept: Vec<KeptMessage> = Vec::new();
         let mut first_pass_fault = None;
-        for msg in MessageSource::new(files.to_vec()) {
+        let mut source = MessageSource::new(files.to_vec());
+        for msg in source.by_ref() {
             let msg = match msg {
                 Ok(m) => m,
                 Err(e) => {
@@ -326,18 +373,12 @@ impl FirstPass {
             {
                 Some(i) => i,
                 None => {
-                    let message_type = msg
-                        .channel
-                        .schema
-                        .as_ref()
-                        .map(|s| s.name.clone())
-                        .unwrap_or_default();
                     channels.push(ChannelInfo {
-                        kind: MessageKind::from_type(&message_type),
+                        kind: MessageKind::from_type(&msg.channel.message_type),
                         info: TopicInfo {
                             topic: msg.channel.topic.clone(),
-                            message_type,
-                            encoding: msg.channel.message_encoding.clone(),
+                            message_type: msg.channel.message_type.clone(),
+                            encoding: msg.channel.encoding.clone(),
                             count: 0,
                         },
                     });
@@ -350,8 +391,17 @@ impl FirstPass {
                 .kind
                 .is_some_and(|k| k.is_odometry() || k == MessageKind::Imu)
             {
-                kept.push((idx, msg.data));
+                let file = files.get(msg.file).map(|f| f.0.clone()).unwrap_or_default();
+                kept.push(KeptMessage {
+                    channel: idx,
+                    file,
+                    log_time: msg.log_time,
+                    data: msg.data,
+                });
             }
+        }
+        if first_pass_fault.is_none() {
+            first_pass_fault = source.faults().first().map(|f| f.to_error(None));
         }
         Self {
             channels,
@@ -376,6 +426,97 @@ impl FirstPass {
             fault: None,
         }
     }
+}
+
+/// The odometry trajectory from a TUM file or the odometry topic among the kept messages
+/// (`kept` = channel table and messages of the first pass); an error naming the topic and
+/// the log's damage (`fault_text`) when it is empty.
+fn odometry_trajectory(
+    path: &Path,
+    opts: &ScanStreamOptions,
+    (channels, kept): (&[ChannelInfo], &[KeptMessage]),
+    message_errors: &mut Vec<String>,
+    fault_text: Option<String>,
+) -> Result<Trajectory> {
+    let mut odometry_topic = None;
+    let trajectory = match &opts.odometry {
+        OdometrySource::Tum(tum) => Trajectory::new(read_tum(tum)?, opts.gap_periods),
+        OdometrySource::Topic(requested) => {
+            let topic = resolve_topic(
+                path,
+                channels,
+                requested.as_deref(),
+                "odometry (Odometry, PoseStamped, TransformStamped or TFMessage)",
+                MessageKind::is_odometry,
+            )?;
+            let samples = odometry_samples(&topic, channels, kept, message_errors);
+            let chain = single_transform_chain(path, &topic.0, samples)?;
+            odometry_topic = Some(topic.0);
+            Trajectory::new(chain, opts.gap_periods)
+        }
+    };
+    if trajectory.is_empty() {
+        let reason = match fault_text {
+            Some(fault) => {
+                format!("odometry topic has no messages before the log's damage: {fault}")
+            }
+            None => "odometry topic has no messages".to_string(),
+        };
+        return Err(log_error(path, odometry_topic.as_deref(), reason));
+    }
+    Ok(trajectory)
+}
+
+/// The pose samples of the odometry `topic` (name, kind, encoding) among the kept messages,
+/// in record order. A message that does not decode is left out and named in `errors` (the
+/// interval it leaves becomes a gap if it is long).
+fn odometry_samples(
+    topic: &(String, MessageKind, Encoding),
+    channels: &[ChannelInfo],
+    kept: &[KeptMessage],
+    errors: &mut Vec<String>,
+) -> Vec<PoseSample> {
+    let (name, kind, encoding) = topic;
+    let mut samples: Vec<PoseSample> = Vec::new();
+    for k in kept
+        .iter()
+        .filter(|k| channels[k.channel].info.topic == *name)
+    {
+        match decode_poses(*kind, *encoding, &k.data) {
+            Ok(decoded) => samples.extend(decoded),
+            Err(e) if errors.len() < MAX_MESSAGE_ERRORS => {
+                let at = k.log_time as f64 * 1e-9;
+                let reason = format!("message at log time {at:.9} s: {e}");
+                errors.push(log_error(&k.file, Some(name), reason).to_string());
+            }
+            Err(_) => {}
+        }
+    }
+    samples
+}
+
+/// The IMU series of the `requested` topic among the kept messages.
+fn imu_series(
+    path: &Path,
+    channels: &[ChannelInfo],
+    kept: &[KeptMessage],
+    requested: &str,
+) -> Result<ImuSeries> {
+    let (topic, _, encoding) = resolve_topic(
+        path,
+        channels,
+        Some(requested),
+        "IMU (sensor_msgs/Imu)",
+        |k| k == MessageKind::Imu,
+    )?;
+    let samples: Vec<ImuSample> = kept
+        .iter()
+        .filter(|k| channels[k.channel].info.topic == topic)
+        .map(|k| {
+            decode_imu_message(encoding, &k.data).map_err(|e| log_error(&k.file, Some(&topic), e))
+        })
+        .collect::<Result<_>>()?;
+    Ok(ImuSeries::new(samples))
 }
 
 /// A TFMessage topic can carry several frame pairs; odometry must be one chain
@@ -408,53 +549,109 @@ fn single_transform_chain(
         .collect())
 }
 
+impl ScanStream {
+    /// The next cloud message on the points topic, `None` at the end of the log. Damage to
+    /// the log is not an error here: the source records it ([`Self::faults`]) and goes on.
+    fn next_cloud_message(&mut self) -> Option<Result<super::source::RawMessage>> {
+        loop {
+            match self.source.next()? {
+                Err(e) => return Some(Err(with_topic(e, &self.points_topic))),
+                Ok(m) if m.channel.topic == self.points_topic => return Some(Ok(m)),
+                Ok(_) => {}
+            }
+        }
+    }
+
+    /// Records a cloud that failed to decode; the error names file, topic and log time.
+    fn undecodable(&mut self, file: &Path, log_time: u64, reason: String) -> DecodError {
+        self.stats.undecodable += 1;
+        let reason = format!(
+            "message at log time {:.9} s: {reason}",
+            log_time as f64 * 1e-9
+        );
+        let err = log_error(file, Some(&self.points_topic), reason);
+        if self.message_errors.len() < MAX_MESSAGE_ERRORS {
+            self.message_errors.push(err.to_string());
+        }
+        err
+    }
+
+    /// Whether a cloud stamped `stamp` is used: inside the odometry span, outside its gaps,
+    /// after the previous scan. Clouds left out are recorded by reason.
+    fn usable(&mut self, stamp: f64) -> bool {
+        if let Some(previous) = self
+            .previous_stamp
+            .filter(|&p| p.partial_cmp(&stamp) != Some(std::cmp::Ordering::Less))
+        {
+            self.stats.out_of_order += 1;
+            self.out_of_order.push((stamp, previous));
+            return false;
+        }
+        if self.trajectory.gap_at(stamp).is_some() {
+            self.skipped_in_gaps.push(stamp);
+            return false;
+        }
+        true
+    }
+}
+
 impl Iterator for ScanStream {
     type Item = Result<Scan>;
 
-    /// The next scan. A message that fails to decode yields an error naming the file and
-    /// topic and the stream goes on; a fault of the log itself (truncation, corrupt chunk)
-    /// yields one error and ends the stream. Scans already yielded stay valid.
+    /// The next scan. A message that fails to decode yields an error naming the file, topic
+    /// and log time, and the stream goes on; damage to the log itself (a cut-off file, a
+    /// corrupt chunk) is recorded in [`ScanStream::faults`] and reading goes on as far as the
+    /// container allows. Only a file that is not a log ends the stream with an error.
     fn next(&mut self) -> Option<Self::Item> {
         while !self.finished {
-            let msg = match self.source.next() {
+            let msg = match self.next_cloud_message() {
                 None => {
                     self.finished = true;
                     return None;
                 }
                 Some(Err(e)) => {
                     self.finished = true;
-                    return Some(Err(with_topic(e, &self.points_topic)));
+                    return Some(Err(e));
                 }
                 Some(Ok(m)) => m,
             };
-            if msg.channel.topic != self.points_topic {
-                continue;
-            }
+            self.stats.messages += 1;
             let file = self
                 .source
                 .files()
                 .get(msg.file)
-                .cloned()
-                .unwrap_or_else(|| self.path.clone());
+                .map_or_else(|| self.path.clone(), |f| f.0.clone());
             let cloud = match decode_cloud(self.points_kind, self.points_encoding, &msg.data) {
                 Ok(c) => c,
-                Err(e) => {
-                    let reason = format!(
-                        "message at log time {:.9} s: {e}",
-                        msg.log_time as f64 * 1e-9
-                    );
-                    return Some(Err(log_error(&file, Some(&self.points_topic), reason)));
-                }
+                Err(e) => return Some(Err(self.undecodable(&file, msg.log_time, e))),
             };
+            self.stats.non_finite_points += cloud.dropped_non_finite as u64;
+            if cloud.points.is_empty() {
+                if cloud.dropped_non_finite == 0 {
+                    self.stats.zero_size += 1;
+                } else {
+                    self.stats.empty += 1;
+                }
+            }
             let stamp = cloud.header.stamp;
-            let Some(world_from_body) = self.trajectory.at(stamp) else {
+            let inside = self
+                .trajectory
+                .span()
+                .is_some_and(|(a, b)| a <= stamp && stamp <= b);
+            if !inside {
                 self.skipped.push(stamp);
                 continue;
+            }
+            if !self.usable(stamp) {
+                continue;
+            }
+            let Some(world_from_body) = self.trajectory.at(stamp) else {
+                continue; // unreachable: inside the span and outside every gap
             };
             self.dropped_non_finite += cloud.dropped_non_finite;
             // IMU window: since the previous cloud (one scan period); the first scan takes
             // the sample nearest to its stamp.
-            let t0 = self.previous_stamp.filter(|&p| p < stamp).unwrap_or(stamp);
+            let t0 = self.previous_stamp.unwrap_or(stamp);
             self.previous_stamp = Some(stamp);
             let specific_force_in_body = self.imu.as_ref().and_then(|imu| imu.mean_over(t0, stamp));
             return Some(Ok(Scan {

@@ -11,7 +11,7 @@ use pyo3::prelude::*;
 use super::arrays::{flat_to_numpy, rows_to_numpy};
 use super::detached;
 use crate::geometry::{pose_to_matrix, pose_to_tq};
-use crate::io::{OdometrySource, ScanStream, ScanStreamOptions};
+use crate::io::{LogFault, OdometrySource, ScanStream, ScanStreamOptions};
 
 /// One scan as `(stamp, points (N, 3) float32, world_from_body (4, 4) float64,
 /// specific_force (3,) float64 or None)`.
@@ -72,6 +72,11 @@ impl ScanReader {
         lock(&self.stream).points_topic().to_string()
     }
 
+    /// What the stream met so far: faults, gaps, clouds left out (see `health_of`).
+    fn health(&self) -> HealthRow {
+        health_of(&lock(&self.stream))
+    }
+
     /// The odometry as TUM rows `(N, 8)`: `stamp tx ty tz qx qy qz qw`.
     fn odometry<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let rows: Vec<[f64; 8]> = lock(&self.stream)
@@ -83,6 +88,68 @@ impl ScanReader {
     }
 }
 
+/// A `decod::io::LogFault` as `(file, kind, offset, reason, last_complete_s, lost_span_s,
+/// messages_lost, message)`.
+pub(crate) type FaultRow = (
+    String,
+    String,
+    u64,
+    String,
+    Option<f64>,
+    Option<(f64, f64)>,
+    Option<u64>,
+    String,
+);
+
+/// `(faults, odometry gaps (start, end, kind), stamps skipped in gaps, out-of-order clouds
+/// (stamp, previous), cloud counts (messages, undecodable, zero_size, empty,
+/// non_finite_points, out_of_order), message errors)` of a scan stream.
+pub(crate) type HealthRow = (
+    Vec<FaultRow>,
+    Vec<(f64, f64, String)>,
+    Vec<f64>,
+    Vec<(f64, f64)>,
+    (u64, u64, u64, u64, u64, u64),
+    Vec<String>,
+);
+
+pub(crate) fn fault_row(f: &LogFault) -> FaultRow {
+    let secs = |ns: u64| ns as f64 * 1e-9;
+    (
+        f.file.display().to_string(),
+        f.kind.name().to_string(),
+        f.offset,
+        f.reason.clone(),
+        f.last_complete_ns.map(secs),
+        f.lost_span_ns.map(|(a, b)| (secs(a), secs(b))),
+        f.messages_lost,
+        f.to_string(),
+    )
+}
+
+pub(crate) fn health_of(stream: &ScanStream) -> HealthRow {
+    let c = stream.cloud_stats();
+    (
+        stream.faults().iter().map(fault_row).collect(),
+        stream
+            .odometry_gaps()
+            .iter()
+            .map(|g| (g.start, g.end, g.kind.name().to_string()))
+            .collect(),
+        stream.skipped_in_gaps().to_vec(),
+        stream.out_of_order().to_vec(),
+        (
+            c.messages,
+            c.undecodable,
+            c.zero_size,
+            c.empty,
+            c.non_finite_points,
+            c.out_of_order,
+        ),
+        stream.message_errors().to_vec(),
+    )
+}
+
 fn tum_row(stamp: f64, pose: &crate::geometry::Pose) -> [f64; 8] {
     let (t, q) = pose_to_tq(pose);
     [stamp, t[0], t[1], t[2], q[0], q[1], q[2], q[3]]
@@ -90,7 +157,8 @@ fn tum_row(stamp: f64, pose: &crate::geometry::Pose) -> [f64; 8] {
 
 /// Opens a scan stream (reads odometry and IMU first). `odom` and `odom_tum` are exclusive.
 #[pyfunction]
-#[pyo3(signature = (path, points = None, odom = None, odom_tum = None, imu = None))]
+/// `gap_periods`: odometry gap bound in median periods (5.0 = `DEFAULT_GAP_PERIODS`).
+#[pyo3(signature = (path, points = None, odom = None, odom_tum = None, imu = None, gap_periods = 5.0))]
 fn open_scan_stream(
     py: Python<'_>,
     path: PathBuf,
@@ -98,6 +166,7 @@ fn open_scan_stream(
     odom: Option<String>,
     odom_tum: Option<PathBuf>,
     imu: Option<String>,
+    gap_periods: f64,
 ) -> PyResult<ScanReader> {
     let odometry = match (odom, odom_tum) {
         (Some(_), Some(_)) => {
@@ -112,6 +181,7 @@ fn open_scan_stream(
         points_topic: points,
         odometry,
         imu_topic: imu,
+        gap_periods,
     };
     let stream = detached(py, || ScanStream::open(&path, &opts))?;
     Ok(ScanReader {

@@ -19,6 +19,7 @@ use super::arrays::flat_to_numpy;
 use super::detached;
 use super::errors::to_py_err;
 use super::extraction::{PyExtractionResult, config_from_json};
+use super::io::{HealthRow, health_of};
 
 /// One processed submap: where it is and what extraction found in it.
 #[pyclass(name = "ProcessedSubmap", module = "decod_rs._core", frozen)]
@@ -102,6 +103,7 @@ impl PyLogProcessor {
                 None => OdometrySource::Topic(odom_topic),
             },
             imu_topic,
+            gap_periods: config.submap.odometry_gap_periods,
         };
         let mut inner = detached(py, || LogProcessor::open(&path, &options, &config, batch))?;
         if !map {
@@ -150,6 +152,10 @@ impl PyLogProcessor {
     #[getter]
     fn points_topic(&self) -> PyResult<String> {
         Ok(self.lock()?.points_topic().to_string())
+    }
+    /// What the stream met: faults, odometry gaps, clouds left out (`_ScanReader.health`).
+    fn health(&self) -> PyResult<HealthRow> {
+        Ok(health_of(self.lock()?.stream()))
     }
     /// Stamps of scans skipped because they lie outside the odometry span.
     #[getter]

@@ -21,6 +21,7 @@ from decod_rs import _core
 from decod_rs.batch.grid import REPLAYED_SECTIONS, apply_params
 from decod_rs.batch.jobs import RunOptions
 from decod_rs.config import Config
+from decod_rs.ingest import StreamHealth, ingest_section
 from decod_rs.io import find_imu_topic
 from decod_rs.pipeline import (
     MODES,
@@ -32,6 +33,7 @@ from decod_rs.pipeline import (
     _Extracted,
     finish_run,
 )
+from decod_rs.run_files import staged_run_dir
 
 FloatArray = NDArray[np.float64]
 
@@ -107,30 +109,41 @@ def run_from_extraction(
     opts = extraction.options
     if opts.mode not in MODES:
         raise ValueError(f"mode: {opts.mode!r} is not one of {MODES}")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    health = StreamHealth.from_core(extraction.processor.health())
+    gap_periods = float(extraction.cfg.submap.odometry_gap_periods)
+    ingest, gap_factors = ingest_section(
+        health, extraction.processor.points_topic, extraction.scans, gap_periods
+    )
     head = {
         "preset": opts.preset,
         "auto": extraction.auto,
         "imu_topic": extraction.imu_topic,
+        "ingest": ingest,
         **(report_extra or {}),
     }
-    return finish_run(
-        Extracted(
-            extraction.log,
-            extraction.processor,
-            extraction.extracted,
-            extraction.scans,
-            extraction.imu_topic,
-        ),
-        out_dir,
-        cfg,
-        opts.mode,
-        opts.loops,
-        opts.plots,
-        dict(extraction.timings_s),
-        head,
-        Visuals(map=opts.map),
+    extracted = Extracted(
+        extraction.log,
+        extraction.processor,
+        extraction.extracted,
+        extraction.scans,
+        gap_factors,
+        extraction.imu_topic,
     )
+    # Written into OUT.partial, published at the end (as decod run): never half-written.
+    with staged_run_dir(out_dir) as staging:
+        summary = finish_run(
+            extracted,
+            staging,
+            cfg,
+            opts.mode,
+            opts.loops,
+            opts.plots,
+            dict(extraction.timings_s),
+            head,
+            Visuals(map=opts.map),
+        )
+    summary.out_dir = out_dir
+    return summary
 
 
 def replay_params(extraction: Extraction, params: dict[str, Any]) -> Config:

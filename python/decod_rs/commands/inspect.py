@@ -8,8 +8,10 @@ from decod_rs.io import LogInfo, inspect_log
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("inspect", help="list the topics of a .mcap file or rosbag2 directory")
-    p.add_argument("log", help="a .mcap file or a rosbag2 directory")
+    p = sub.add_parser(
+        "inspect", help="list the topics of a log (.mcap, ROS 1 .bag, .db3, rosbag2 directory)"
+    )
+    p.add_argument("log", help="a .mcap, .bag or .db3 file, or a rosbag2 directory")
     p.set_defaults(func=run)
 
 
@@ -32,7 +34,7 @@ def format_log_info(info: LogInfo) -> str:
     else:
         lines.append("no messages")
     if info.problem:
-        lines.append(f"warning: counts are partial: {info.problem}")
+        lines.append(f"warning: the log is damaged, counts are of what is readable: {info.problem}")
     return "\n".join(lines)
 
 

@@ -16,11 +16,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run",
         help="detect, match and close loops on a log; write corrected.tum and a report",
-        description="Run DeCOD on a ROS 2 MCAP log (.mcap or rosbag2 directory; ROS 1 bags "
-        "through `decod convert`) and write odometry.tum, corrected.tum, loops.csv, "
-        "landmarks.csv, report.json and plots into --out.",
+        description="Run DeCOD on a log (.mcap, ROS 1 .bag, .db3 or a rosbag2 directory with "
+        "MCAP or sqlite3 storage) and write odometry.tum, corrected.tum, loops.csv, "
+        "landmarks.csv, report.json and plots into --out. A cut-off or corrupt log is read as "
+        "far as it goes (report.json 'ingest' says what was lost); the files appear in --out "
+        "only when the run is complete (it writes into OUT.partial first).",
     )
-    p.add_argument("log", type=Path, help=".mcap file or rosbag2 directory")
+    p.add_argument("log", type=Path, help=".mcap, .bag or .db3 file, or rosbag2 directory")
     p.add_argument(
         "--preset",
         choices=("auto", *PRESETS),

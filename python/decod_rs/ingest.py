@@ -1,0 +1,215 @@
+"""What reading a real log met (issue 11): damage to the file, odometry gaps, unusable clouds.
+
+The Rust scan stream reads a damaged log as far as it goes (every complete message before a
+cut; a corrupt chunk skipped) and never interpolates across an odometry gap or reorders
+stamps; this module turns what it recorded into ``report.json``'s ``ingest`` section, warns
+once, and decides how the pose graph joins the two sides of each gap:
+
+- ``"odometry"``: the odometry's relative pose across the gap is plausible (the travel it
+  implies is at most ``GAP_SPEED_FACTOR`` times the fastest normal motion over the gap's
+  duration, plus ``GAP_SLACK_M``): the edge stays the odometry's, its random-walk sigma
+  growing with the distance like any other edge;
+- ``"weak"``: the odometry jumped across the gap (e.g. a LIO restarted in a new frame): the
+  edge's sigmas are multiplied by ``WEAK_GAP_SIGMA_FACTOR``, so loops decide where the two
+  sides lie and the odometry barely pulls;
+- ``"none"``: the gap is before the first or after the last scan (nothing to join).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+#: Travel across a gap is plausible up to this many times the 95th-percentile scan-to-scan
+#: speed times the gap's duration (a robot may speed up, not teleport).
+GAP_SPEED_FACTOR = 3.0
+#: ... plus this much, metres (a robot standing still through the gap may still settle).
+GAP_SLACK_M = 0.5
+#: Sigma factor of the odometry edge across a gap whose relative pose is implausible: 1e3
+#: turns 1 cm into 10 m, weaker than any loop factor, strong enough to keep the graph
+#: connected (no gauge freedom).
+WEAK_GAP_SIGMA_FACTOR = 1e3
+#: Out-of-order stamps listed in the report (the rest are counted).
+MAX_LISTED = 100
+
+__all__ = ["LogFaultInfo", "LogWarning", "StreamHealth", "gap_bridges", "ingest_section"]
+
+
+class LogWarning(UserWarning):
+    """The log was damaged or had odometry gaps; the run went on (see ``report.json``)."""
+
+
+@dataclass(frozen=True)
+class LogFaultInfo:
+    """Damage found in a log file (``decod::io::LogFault``).
+
+    Attributes:
+        file: the file at fault.
+        kind: ``truncated`` (cut off: reading of the file stopped; every complete message
+            before was read), ``corrupt`` (a chunk or record skipped, reading went on) or
+            ``unreadable`` (reading of the file stopped).
+        offset: byte offset of the record at fault (sqlite3: the last row id read).
+        reason: what was wrong.
+        last_complete_s: log time of the last complete message before it, seconds.
+        lost_span_s: ``(start, end)`` log time lost, seconds, when the container says.
+        messages_lost: messages lost, when the container says.
+        message: all of it in one line, naming the file.
+    """
+
+    file: str
+    kind: str
+    offset: int
+    reason: str
+    last_complete_s: float | None
+    lost_span_s: tuple[float, float] | None
+    messages_lost: int | None
+    message: str
+
+
+@dataclass(frozen=True)
+class StreamHealth:
+    """What a scan stream met so far (``_core.LogProcessor.health()``).
+
+    Attributes:
+        faults: damage to the log files.
+        gaps: odometry intervals ``(start_s, end_s, kind)`` not interpolated; kind is
+            ``gap``, ``backwards`` or ``duplicate``.
+        skipped_in_gaps: stamps of the clouds left out because they fall inside a gap.
+        out_of_order: ``(stamp, previous)`` of clouds stamped at or before the scan before.
+        clouds: counts on the points topic: ``messages, undecodable, zero_size, empty,
+            non_finite_points, out_of_order``.
+        message_errors: undecodable messages, each naming file, topic and log time.
+    """
+
+    faults: list[LogFaultInfo]
+    gaps: list[tuple[float, float, str]]
+    skipped_in_gaps: list[float]
+    out_of_order: list[tuple[float, float]]
+    clouds: dict[str, int]
+    message_errors: list[str]
+
+    @classmethod
+    def from_core(cls, row: Any) -> StreamHealth:
+        """From the tuple ``health()`` returns (``src/python/io.rs`` ``HealthRow``)."""
+        faults, gaps, in_gaps, order, counts, errors = row
+        names = ("messages", "undecodable", "zero_size", "empty", "non_finite_points")
+        return cls(
+            faults=[LogFaultInfo(*f) for f in faults],
+            gaps=[(float(a), float(b), str(k)) for a, b, k in gaps],
+            skipped_in_gaps=[float(t) for t in in_gaps],
+            out_of_order=[(float(a), float(b)) for a, b in order],
+            clouds=dict(zip((*names, "out_of_order"), (int(c) for c in counts), strict=True)),
+            message_errors=list(errors),
+        )
+
+    def problems(self) -> int:
+        """Faults, gaps, undecodable and out-of-order clouds: what deserves a warning."""
+        c = self.clouds
+        return len(self.faults) + len(self.gaps) + c["undecodable"] + c["out_of_order"]
+
+
+def _normal_speed(stamps: FloatArray, poses: FloatArray, gaps: list[tuple[float, float]]) -> float:
+    """95th-percentile scan-to-scan speed (m/s) over the intervals that cross no gap."""
+    if stamps.size < 2:
+        return 0.0
+    dt = np.diff(stamps)
+    dp = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    ok = dt > 0
+    for a, b in gaps:
+        ok &= ~((stamps[:-1] < b) & (stamps[1:] > a))
+    return float(np.percentile(dp[ok] / dt[ok], 95)) if np.any(ok) else 0.0
+
+
+def gap_bridges(
+    stamps: FloatArray, poses: FloatArray, gaps: list[tuple[float, float, str]]
+) -> tuple[list[str], FloatArray | None]:
+    """How each gap is bridged (module doc) and the per-scan sigma factors (M,) for
+    ``correct_trajectory`` (None when no gap is weak). A weak gap's factor sits on the first
+    scan after it, so the edge across the gap (and the one after that scan) is weakened."""
+    spans = [(a, b) for a, b, _ in gaps]
+    speed = _normal_speed(stamps, poses, spans)
+    factors = np.ones(stamps.size)
+    bridges = []
+    for _start, b in spans:
+        after = int(np.searchsorted(stamps, b, side="left"))
+        if after == 0 or after >= stamps.size:
+            bridges.append("none")
+            continue
+        travel = float(np.linalg.norm(poses[after, :3, 3] - poses[after - 1, :3, 3]))
+        limit = GAP_SPEED_FACTOR * speed * float(stamps[after] - stamps[after - 1]) + GAP_SLACK_M
+        if travel <= limit:
+            bridges.append("odometry")
+        else:
+            bridges.append("weak")
+            factors[after] = WEAK_GAP_SIGMA_FACTOR
+    return bridges, (factors if np.any(factors != 1.0) else None)
+
+
+def ingest_section(
+    health: StreamHealth,
+    points_topic: str,
+    scans: tuple[FloatArray, FloatArray],
+    gap_periods: float,
+) -> tuple[dict[str, Any], FloatArray | None]:
+    """``report.json``'s ``ingest`` section and the gap sigma factors (see
+    :func:`gap_bridges`) from a stream's health and the scan odometry it yielded."""
+    bridges, factors = gap_bridges(scans[0], scans[1], health.gaps)
+    skipped = np.asarray(health.skipped_in_gaps, dtype=np.float64)
+    gaps = [
+        {
+            "start_s": a,
+            "end_s": b,
+            "duration_s": b - a,
+            "kind": kind,
+            "scans_skipped": int(np.sum((skipped > a) & (skipped < b))),
+            "bridge": bridge,
+        }
+        for (a, b, kind), bridge in zip(health.gaps, bridges, strict=True)
+    ]
+    section = {
+        "complete": not health.faults,
+        "faults": [
+            {
+                "file": f.file,
+                "kind": f.kind,
+                "byte_offset": f.offset,
+                "reason": f.reason,
+                "last_complete_log_time_s": f.last_complete_s,
+                "lost_log_time_s": None if f.lost_span_s is None else list(f.lost_span_s),
+                "messages_lost": f.messages_lost,
+            }
+            for f in health.faults
+        ],
+        "odometry_gap_periods": gap_periods,
+        "odometry_gaps": gaps,
+        "scans_skipped_in_gaps": len(health.skipped_in_gaps),
+        "out_of_order_scans": [
+            {"stamp": t, "previous_stamp": p} for t, p in health.out_of_order[:MAX_LISTED]
+        ],
+        "clouds": {points_topic: health.clouds},
+        "message_errors": health.message_errors,
+    }
+    return section, factors
+
+
+def warn_once(log: object, health: StreamHealth) -> None:
+    """One :class:`LogWarning` summing up what the log had, if it had anything."""
+    if not health.problems():
+        return
+    parts = [f.message for f in health.faults[:3]]
+    if health.gaps:
+        parts.append(f"{len(health.gaps)} odometry gap(s) not interpolated")
+    c = health.clouds
+    if c["undecodable"] or c["out_of_order"]:
+        parts.append(f"{c['undecodable']} undecodable and {c['out_of_order']} out-of-order clouds")
+    more = "" if len(health.faults) <= 3 else f" (+{len(health.faults) - 3} more faults)"
+    text = "; ".join(parts)
+    warnings.warn(
+        f"{log}: {text}{more}; the run went on, see report.json 'ingest'", LogWarning, stacklevel=3
+    )

@@ -1,0 +1,393 @@
+//! MCAP files read record by record, chunk handling our own (issue 11), so that damage costs
+//! only what it touches: a file cut off mid-record yields every complete message before the
+//! cut ([`FaultKind::Truncated`] with the byte offset); a chunk whose CRC does not match, or
+//! that does not decompress, is skipped with its log-time span and (from the message index
+//! records that follow it) its message count ([`FaultKind::Corrupt`]), and reading goes on
+//! at the next record. `mcap::MessageReader` stops at the first such error, hence this
+//! reader; records are still parsed by `mcap::parse_record`.
+//!
+//! Memory is bounded by one chunk (compressed and decompressed) plus one message, as before.
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use mcap::records::{Record, op};
+
+use super::log::log_error;
+use super::source::{
+    ChannelMeta, ContainerReader, FaultKind, Item, LogFault, RECORD_LENGTH_LIMIT, RawMessage,
+    io_error, le_u32, le_u64,
+};
+use crate::error::Result;
+
+/// The MCAP magic (start and end of a file).
+pub const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+/// Opcode (1) and length (8) bytes before each record body.
+const RECORD_PREFIX: u64 = 9;
+
+/// One top-level record: opcode, byte offset and body.
+struct RawRecord {
+    opcode: u8,
+    offset: u64,
+    body: Vec<u8>,
+}
+
+/// A decompressed chunk being read record by record.
+struct ChunkCursor {
+    data: Vec<u8>,
+    at: usize,
+    offset: u64,
+}
+
+/// A reader of one MCAP file (see the module doc).
+pub struct McapFile {
+    path: PathBuf,
+    reader: BufReader<File>,
+    file_len: u64,
+    pos: u64,
+    schemas: HashMap<u16, String>,
+    channels: HashMap<u16, Arc<ChannelMeta>>,
+    chunk: Option<ChunkCursor>,
+    pending_fault: Option<LogFault>,
+    peeked: Option<RawRecord>,
+    last_time: Option<u64>,
+    in_summary: bool,
+    done: bool,
+}
+
+impl McapFile {
+    /// Opens `path` and checks its magic. Errors: the file cannot be opened, or it holds
+    /// something else than MCAP. An empty or cut-off magic is a truncation fault instead.
+    pub fn open(path: &Path) -> Result<Self> {
+        let file = File::open(path).map_err(|e| io_error(path, e))?;
+        let file_len = file.metadata().map_err(|e| io_error(path, e))?.len();
+        let mut reader = BufReader::with_capacity(1 << 20, file);
+        let magic_len = MCAP_MAGIC.len() as u64;
+        let cut = file_len < magic_len;
+        if !cut {
+            let mut magic = [0u8; 8];
+            reader
+                .read_exact(&mut magic)
+                .map_err(|e| io_error(path, e))?;
+            if &magic != MCAP_MAGIC {
+                return Err(log_error(path, None, "not an MCAP file (bad magic number)"));
+            }
+        }
+        let mut me = Self {
+            path: path.to_path_buf(),
+            reader,
+            file_len,
+            pos: if cut { 0 } else { magic_len },
+            schemas: HashMap::new(),
+            channels: HashMap::new(),
+            chunk: None,
+            pending_fault: None,
+            peeked: None,
+            last_time: None,
+            in_summary: false,
+            done: cut,
+        };
+        if cut {
+            let reason = "file ends inside the MCAP magic";
+            me.pending_fault = Some(me.fault(FaultKind::Truncated, 0, reason));
+        }
+        Ok(me)
+    }
+
+    fn fault(&self, kind: FaultKind, offset: u64, reason: impl Into<String>) -> LogFault {
+        LogFault {
+            file: self.path.clone(),
+            kind,
+            offset,
+            reason: reason.into(),
+            last_complete_ns: self.last_time,
+            lost_span_ns: None,
+            // Cut inside the summary section: every message was read.
+            messages_lost: self.in_summary.then_some(0),
+        }
+    }
+
+    /// The next top-level record; `Ok(None)` at a clean end of the file.
+    fn read_record(&mut self) -> std::result::Result<Option<RawRecord>, LogFault> {
+        if let Some(r) = self.peeked.take() {
+            return Ok(Some(r));
+        }
+        let offset = self.pos;
+        let left = self.file_len - offset;
+        if left == 0 {
+            return Err(self.fault(
+                FaultKind::Truncated,
+                offset,
+                "file ends without a footer (cut off between records)",
+            ));
+        }
+        if left < RECORD_PREFIX {
+            return Err(self.fault(
+                FaultKind::Truncated,
+                offset,
+                "file ends inside a record's opcode and length",
+            ));
+        }
+        let mut head = [0u8; 9];
+        self.read_exact(&mut head, offset)?;
+        let opcode = head[0];
+        let len = le_u64(&head, 1).unwrap_or(u64::MAX);
+        if len > RECORD_LENGTH_LIMIT {
+            let reason = format!(
+                "record (opcode {opcode:#04x}) claims {len} bytes, above the {RECORD_LENGTH_LIMIT}-byte limit"
+            );
+            return Err(self.fault(FaultKind::Unreadable, offset, reason));
+        }
+        if len > left - RECORD_PREFIX {
+            let reason = format!(
+                "record (opcode {opcode:#04x}) claims {len} bytes but the file ends {} bytes later (cut off, or a corrupt length)",
+                left - RECORD_PREFIX
+            );
+            return Err(self.fault(FaultKind::Truncated, offset, reason));
+        }
+        let mut body = vec![0u8; len as usize];
+        self.read_exact(&mut body, offset)?;
+        self.pos = offset + RECORD_PREFIX + len;
+        Ok(Some(RawRecord {
+            opcode,
+            offset,
+            body,
+        }))
+    }
+
+    fn read_exact(&mut self, buf: &mut [u8], offset: u64) -> std::result::Result<(), LogFault> {
+        self.reader
+            .read_exact(buf)
+            .map_err(|e| self.fault(FaultKind::Unreadable, offset, format!("read error: {e}")))
+    }
+
+    /// Schema and channel records (top level or inside a chunk) fill the channel table; a
+    /// message on a known channel is returned.
+    fn handle(
+        &mut self,
+        opcode: u8,
+        body: &[u8],
+        offset: u64,
+    ) -> std::result::Result<Option<RawMessage>, LogFault> {
+        if !matches!(opcode, op::SCHEMA | op::CHANNEL | op::MESSAGE) {
+            return Ok(None);
+        }
+        let record = mcap::parse_record(opcode, body).map_err(|e| {
+            self.fault(
+                FaultKind::Corrupt,
+                offset,
+                format!("malformed record (opcode {opcode:#04x}) skipped: {e}"),
+            )
+        })?;
+        match record {
+            Record::Schema { header, .. } => {
+                self.schemas.insert(header.id, header.name);
+            }
+            Record::Channel(c) => {
+                let message_type = self.schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                let meta = ChannelMeta {
+                    topic: c.topic,
+                    message_type,
+                    encoding: c.message_encoding,
+                };
+                self.channels.insert(c.id, Arc::new(meta));
+            }
+            Record::Message { header, data } => {
+                let Some(channel) = self.channels.get(&header.channel_id) else {
+                    let reason = format!(
+                        "message on unknown channel id {} skipped",
+                        header.channel_id
+                    );
+                    return Err(self.fault(FaultKind::Corrupt, offset, reason));
+                };
+                self.last_time = Some(header.log_time);
+                return Ok(Some(RawMessage {
+                    channel: channel.clone(),
+                    log_time: header.log_time,
+                    data: data.into_owned(),
+                    file: 0,
+                }));
+            }
+            _ => {}
+        }
+        Ok(None)
+    }
+
+    /// The next record of the current chunk, `None` when it is exhausted.
+    fn next_in_chunk(&mut self) -> Option<std::result::Result<Option<RawMessage>, LogFault>> {
+        let cursor = self.chunk.as_mut()?;
+        let at = cursor.at;
+        let offset = cursor.offset;
+        if at >= cursor.data.len() {
+            self.chunk = None;
+            return None;
+        }
+        let opcode = cursor.data[at];
+        let len = le_u64(&cursor.data, at + 1).and_then(|l| usize::try_from(l).ok());
+        let end = len.and_then(|l| (at + RECORD_PREFIX as usize).checked_add(l));
+        let Some(end) = end.filter(|&e| e <= cursor.data.len()) else {
+            self.chunk = None;
+            let reason = format!(
+                "record at byte {at} of the chunk runs past the chunk's end; rest of the chunk skipped"
+            );
+            return Some(Err(self.fault(FaultKind::Corrupt, offset, reason)));
+        };
+        let body = cursor.data[at + RECORD_PREFIX as usize..end].to_vec();
+        cursor.at = end;
+        Some(self.handle(opcode, &body, offset))
+    }
+
+    /// Decompresses and checks a chunk record; a bad one becomes the pending fault.
+    fn open_chunk(&mut self, record: &RawRecord) {
+        match decompress_chunk(&record.body) {
+            Ok(data) => {
+                self.chunk = Some(ChunkCursor {
+                    data,
+                    at: 0,
+                    offset: record.offset,
+                })
+            }
+            Err((reason, span)) => {
+                let mut fault = self.fault(
+                    FaultKind::Corrupt,
+                    record.offset,
+                    format!("chunk skipped: {reason}"),
+                );
+                fault.lost_span_ns = span;
+                fault.messages_lost = Some(0);
+                self.pending_fault = Some(fault);
+            }
+        }
+    }
+
+    fn next_record_item(&mut self) -> Option<Item> {
+        loop {
+            if let Some(step) = self.next_in_chunk() {
+                match step {
+                    Ok(Some(msg)) => return Some(Item::Message(msg)),
+                    Ok(None) => continue,
+                    Err(fault) => return Some(Item::Fault(fault)),
+                }
+            }
+            let record = match self.read_record() {
+                Ok(Some(r)) => r,
+                Ok(None) => return None,
+                Err(fault) => {
+                    self.done = true;
+                    // A skipped chunk's fault goes out first; the cut follows (`next_item`).
+                    let first = self.pending_fault.replace(fault);
+                    return first.or_else(|| self.pending_fault.take()).map(Item::Fault);
+                }
+            };
+            if let Some(mut fault) = self.pending_fault.take() {
+                if record.opcode == op::MESSAGE_INDEX {
+                    // channel id (u16), then the entries' byte length (u32): 8-byte time +
+                    // 8-byte offset each.
+                    let entries = le_u32(&record.body, 2).map_or(0, |bytes| u64::from(bytes) / 16);
+                    fault.messages_lost = Some(fault.messages_lost.unwrap_or(0) + entries);
+                    self.pending_fault = Some(fault);
+                    continue;
+                }
+                self.peeked = Some(record);
+                return Some(Item::Fault(fault));
+            }
+            match record.opcode {
+                op::CHUNK => self.open_chunk(&record),
+                op::DATA_END => self.in_summary = true,
+                op::FOOTER => {
+                    self.done = true;
+                    return self.check_end_magic(record.offset);
+                }
+                opcode => match self.handle(opcode, &record.body, record.offset) {
+                    Ok(Some(msg)) => return Some(Item::Message(msg)),
+                    Ok(None) => {}
+                    Err(fault) => return Some(Item::Fault(fault)),
+                },
+            }
+        }
+    }
+
+    fn check_end_magic(&mut self, footer_offset: u64) -> Option<Item> {
+        let mut magic = [0u8; 8];
+        if self.file_len - self.pos < 8 || self.reader.read_exact(&mut magic).is_err() {
+            return Some(Item::Fault(self.fault(
+                FaultKind::Truncated,
+                footer_offset,
+                "file ends inside the end magic",
+            )));
+        }
+        None
+    }
+}
+
+/// The decompressed, CRC-checked content of a chunk record, or why not and the chunk's
+/// log-time span.
+/// Why a chunk is unusable, and its log-time span when its header was readable.
+type ChunkError = (String, Option<(u64, u64)>);
+
+fn decompress_chunk(body: &[u8]) -> std::result::Result<Vec<u8>, ChunkError> {
+    let (header, data) = match mcap::parse_record(op::CHUNK, body) {
+        Ok(Record::Chunk { header, data }) => (header, data),
+        Ok(_) => return Err(("not a chunk".into(), None)),
+        Err(e) => return Err((format!("malformed chunk header: {e}"), None)),
+    };
+    let span = Some((header.message_start_time, header.message_end_time));
+    if header.uncompressed_size > RECORD_LENGTH_LIMIT {
+        return Err((
+            format!(
+                "uncompressed size {} above the limit",
+                header.uncompressed_size
+            ),
+            span,
+        ));
+    }
+    let size = header.uncompressed_size as usize;
+    let out = match header.compression.as_str() {
+        "" => Ok(data.into_owned()),
+        "zstd" => zstd::bulk::decompress(&data, size).map_err(|e| format!("zstd: {e}")),
+        "lz4" => lz4_frame(&data, size),
+        other => Err(format!("unsupported compression `{other}`")),
+    }
+    .map_err(|e| (e, span))?;
+    if out.len() != size {
+        return Err((
+            format!("decompressed to {} bytes, header says {size}", out.len()),
+            span,
+        ));
+    }
+    if header.uncompressed_crc != 0 {
+        let crc = crc32fast::hash(&out);
+        if crc != header.uncompressed_crc {
+            let reason = format!(
+                "CRC mismatch (stored {:#010x}, computed {crc:#010x})",
+                header.uncompressed_crc
+            );
+            return Err((reason, span));
+        }
+    }
+    Ok(out)
+}
+
+/// An LZ4 frame decompressed to at most `size` bytes (MCAP and ROS 1 bags both use frames).
+pub(crate) fn lz4_frame(data: &[u8], size: usize) -> std::result::Result<Vec<u8>, String> {
+    let decoder = lz4::Decoder::new(data).map_err(|e| format!("lz4: {e}"))?;
+    let mut out = Vec::with_capacity(size);
+    decoder
+        .take(size as u64 + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| format!("lz4: {e}"))?;
+    Ok(out)
+}
+
+impl ContainerReader for McapFile {
+    fn next_item(&mut self) -> Option<Item> {
+        if self.done {
+            return self.pending_fault.take().map(Item::Fault);
+        }
+        self.next_record_item()
+    }
+}

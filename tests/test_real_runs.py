@@ -1,0 +1,150 @@
+"""``decod run`` on real logs as they come (issue 11): a cut-off recording, a ROS 1 bag, an
+odometry gap, an interrupted run. One short simulated pipe (8 m out and back, 491 scans,
+~3 s to simulate, ~2 s per run) written as rosbag2/MCAP and as a ROS 1 bag.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import decod_rs
+import decod_rs.pipeline
+from decod_rs import _core
+from decod_rs.config import load_config
+from decod_rs.ingest import WEAK_GAP_SIGMA_FACTOR, gap_bridges
+from decod_rs.pipeline import run_log
+from decod_rs.sim import simulate
+
+OUTPUTS = ("odometry.tum", "corrected.tum", "loops.csv", "landmarks.csv", "joints.csv")
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("pipe") / "sim"
+    simulate("hume", out, progress=False, length_m=8.0, drift=0.5, ros1=True)
+    return out
+
+
+def _run(log: Path, out: Path, **kwargs: object) -> dict:
+    run_log(log, out, preset="pipe", progress=False, plots=False, **kwargs)  # type: ignore[arg-type]
+    return json.loads((out / "report.json").read_text(encoding="utf-8"))
+
+
+def test_cut_off_log_runs_to_the_end_and_reports_the_cut(sim: Path, tmp_path: Path) -> None:
+    raw = (sim / "log" / "log.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(raw[: int(len(raw) * 0.55)])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = _run(cut, tmp_path / "out")
+    ours = [w for w in caught if issubclass(w.category, decod_rs.LogWarning)]
+    assert len(ours) == 1 and "cut.mcap: truncated at byte" in str(ours[0].message)
+    ingest = report["ingest"]
+    (fault,) = ingest["faults"]
+    assert fault["kind"] == "truncated" and fault["file"] == str(cut)
+    assert 0 < fault["byte_offset"] <= len(raw) * 0.55
+    assert fault["last_complete_log_time_s"] > 0 and not ingest["complete"]
+    assert 100 < report["counts"]["scans"] < 491
+    assert all((tmp_path / "out" / name).is_file() for name in OUTPUTS)
+
+
+def test_auto_preset_on_a_cut_off_log_warns_once(sim: Path, tmp_path: Path) -> None:
+    raw = (sim / "log" / "log.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(raw[: int(len(raw) * 0.3)])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run_log(cut, tmp_path / "out", progress=False, plots=False)
+    assert sum(issubclass(w.category, decod_rs.LogWarning) for w in caught) == 1
+    report = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
+    assert report["auto"] is not None and report["ingest"]["faults"][0]["kind"] == "truncated"
+
+
+def test_ros1_bag_runs_like_the_mcap_log(sim: Path, tmp_path: Path) -> None:
+    bag = _run(sim / "log.bag", tmp_path / "bag")
+    ref = _run(sim / "log", tmp_path / "mcap")
+    assert bag["counts"] == ref["counts"] and bag["ingest"]["complete"]
+    for name in OUTPUTS:
+        assert (tmp_path / "bag" / name).read_bytes() == (tmp_path / "mcap" / name).read_bytes()
+
+
+def test_odometry_gap_is_listed_and_never_inside_a_submap(sim: Path, tmp_path: Path) -> None:
+    rows = np.loadtxt(sim / "odom.tum")
+    t0 = rows[0, 0]
+    keep = ~((rows[:, 0] > t0 + 20.05) & (rows[:, 0] < t0 + 26.0))
+    tum = tmp_path / "gap.tum"
+    np.savetxt(tum, rows[keep], fmt="%.9f")
+    with pytest.warns(decod_rs.LogWarning, match="1 odometry gap"):
+        report = _run(sim / "log", tmp_path / "out", odom_tum=tum)
+    (gap,) = report["ingest"]["odometry_gaps"]
+    assert gap["kind"] == "gap" and gap["bridge"] == "odometry"
+    assert gap["start_s"] == pytest.approx(t0 + 20.0) and gap["end_s"] == pytest.approx(t0 + 26.0)
+    assert 50 <= gap["scans_skipped"] <= 60
+    assert report["counts"]["skipped_in_odometry_gaps"] == gap["scans_skipped"]
+    stamps = np.loadtxt(tmp_path / "out" / "odometry.tum")[:, 0]
+    assert not np.any((stamps > gap["start_s"]) & (stamps < gap["end_s"]))
+    # No submap holds scans from both sides of the gap.
+    cfg = load_config(None, "pipe")
+    processor = _core.LogProcessor(
+        str(sim / "log"), json.dumps(cfg.to_dict()), odom_tum=str(tum), map=False
+    )
+    while (batch := processor.step()) is not None:
+        for submap in batch:
+            s = np.asarray(submap.scan_stamps)
+            assert s.max() <= gap["start_s"] or s.min() >= gap["end_s"], s
+
+
+def test_gap_bridge_is_weak_when_the_odometry_jumps() -> None:
+    stamps = np.arange(0.0, 10.0, 0.1)
+    poses = np.tile(np.eye(4), (stamps.size, 1, 1))
+    poses[:, 0, 3] = 0.2 * stamps  # 0.2 m/s
+    stamps = stamps[(stamps < 4.0) | (stamps > 6.0)]
+    poses = poses[np.isin(np.arange(100) * 0.1, stamps)]
+    bridges, factors = gap_bridges(stamps, poses, [(3.9, 6.1, "gap")])
+    assert bridges == ["odometry"] and factors is None
+    restarted = poses.copy()
+    restarted[stamps > 6.0, :3, 3] -= restarted[stamps > 6.0][0, :3, 3]  # a new frame
+    restarted[stamps > 6.0, 0, 3] += 40.0
+    bridges, factors = gap_bridges(stamps, restarted, [(3.9, 6.1, "gap")])
+    assert bridges == ["weak"] and factors is not None
+    after = int(np.searchsorted(stamps, 6.1))
+    assert factors[after] == WEAK_GAP_SIGMA_FACTOR and np.sum(factors != 1.0) == 1
+    bridges, _ = gap_bridges(stamps, poses, [(-1.0, 0.0, "gap")])
+    assert bridges == ["none"]
+
+
+def test_interrupted_run_never_looks_finished(
+    sim: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "out"
+    real_write = decod_rs.pipeline._write
+
+    def write_then_fail(*args: object, **kwargs: object) -> object:
+        real_write(*args, **kwargs)  # type: ignore[arg-type]
+        raise KeyboardInterrupt  # Ctrl-C after the CSV files, before report.json
+
+    monkeypatch.setattr(decod_rs.pipeline, "_write", write_then_fail)
+    with pytest.raises(KeyboardInterrupt):
+        _run(sim / "log", out)
+    partial = tmp_path / "out.partial"
+    assert not out.exists() and (partial / "loops.csv").is_file()
+    assert not (partial / "report.json").exists()
+    # Over an earlier complete run (and a file of the user's): untouched until the end.
+    monkeypatch.setattr(decod_rs.pipeline, "_write", real_write)
+    first = _run(sim / "log", out)
+    assert not partial.exists()
+    (out / "notes.txt").write_text("mine")
+    monkeypatch.setattr(decod_rs.pipeline, "_write", write_then_fail)
+    with pytest.raises(KeyboardInterrupt):
+        _run(sim / "log", out)
+    assert json.loads((out / "report.json").read_text(encoding="utf-8")) == first
+    monkeypatch.setattr(decod_rs.pipeline, "_write", real_write)
+    _run(sim / "log", out)
+    assert (out / "notes.txt").read_text() == "mine" and not partial.exists()
+    shutil.rmtree(out)
