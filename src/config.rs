@@ -257,6 +257,36 @@ pub struct MatchingConfig {
     /// together) of each other can corroborate, which caps the allowance at
     /// `consistency_tolerance_m + consistency_drift_fraction * consistency_window_m`.
     pub consistency_window_m: f64,
+    /// Candidate retrieval per query (not in the paper, whose database holds 20 candidates):
+    /// `"exhaustive"` compares the query with every eligible candidate (the paper; kept for
+    /// ablation); `"coarse"` first ranks them by a pooled, heading-invariant signature
+    /// (`matching::retrieval`) and runs the exact matcher on the best
+    /// `retrieval_short_list` only, once more than `retrieval_min_candidates` are eligible.
+    /// The null model's family still counts every eligible boundary, so acceptance is as
+    /// strict as exhaustive. Absent from a stored config: `"coarse"`.
+    #[serde(default = "default_retrieval")]
+    pub retrieval: String,
+    /// Length of the coarse short list (`retrieval = "coarse"`). Absent from a stored
+    /// config: 48.
+    #[serde(default = "default_retrieval_short_list")]
+    pub retrieval_short_list: usize,
+    /// `retrieval = "coarse"` applies only when more candidates than this are eligible;
+    /// within a run (tens to hundreds of boundaries) the exact matcher sees them all.
+    /// Absent from a stored config: 500.
+    #[serde(default = "default_retrieval_min_candidates")]
+    pub retrieval_min_candidates: usize,
+}
+
+fn default_retrieval() -> String {
+    "coarse".into()
+}
+
+fn default_retrieval_short_list() -> usize {
+    48
+}
+
+fn default_retrieval_min_candidates() -> usize {
+    500
 }
 
 fn fixed_acceptance() -> String {
@@ -438,6 +468,9 @@ impl DecodConfig {
                 false_alarm_rate: default_false_alarm_rate(),
                 uniqueness_alpha: default_uniqueness_alpha(),
                 min_inliers_floor: default_min_inliers_floor(),
+                retrieval: default_retrieval(),
+                retrieval_short_list: default_retrieval_short_list(),
+                retrieval_min_candidates: default_retrieval_min_candidates(),
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -630,6 +663,10 @@ impl DecodConfig {
                 self.matching.false_alarm_rate > 0.0 && self.matching.false_alarm_rate < 1.0,
             ),
             (
+                "matching.retrieval_short_list",
+                self.matching.retrieval_short_list >= 1,
+            ),
+            (
                 "matching.uniqueness_alpha",
                 self.matching.uniqueness_alpha > 0.0 && self.matching.uniqueness_alpha < 1.0,
             ),
@@ -688,6 +725,11 @@ impl DecodConfig {
                 "matching.acceptance",
                 &self.matching.acceptance,
                 &["null_model", "fixed"][..],
+            ),
+            (
+                "matching.retrieval",
+                &self.matching.retrieval,
+                &["coarse", "exhaustive"][..],
             ),
             (
                 "graph.loop_factor",
