@@ -22,16 +22,25 @@ use decod::matching::synthetic::{Grid, JointSurface, Observation, Rng, SurfacePa
 
 const DISTINCT: usize = 2000;
 
+/// `n` landmarks: `DISTINCT` synthetic views, then copies of them at other stamps.
 fn landmarks(n: usize, seed: u64) -> Vec<Landmark> {
     let g = Grid::tunnel();
     let mut rng = Rng::new(seed);
-    (0..n)
+    let distinct: Vec<Landmark> = (0..DISTINCT.min(n))
         .map(|k| {
-            let joint = JointSurface::new(g, SurfaceParams::for_grid(&g), 1, (k % DISTINCT) as u64);
+            let joint = JointSurface::new(g, SurfaceParams::for_grid(&g), 1, k as u64);
             joint.observe(
                 &Observation::random(&g, 10.0 * k as f64, false, &mut rng),
                 k as u64,
             )
+        })
+        .collect();
+    (0..n)
+        .map(|k| {
+            let mut l = distinct[k % distinct.len()].clone();
+            l.submap_stamp = 10.0 * k as f64;
+            l.scan_stamps = vec![l.submap_stamp];
+            l
         })
         .collect()
 }
@@ -76,12 +85,12 @@ fn bench(c: &mut Criterion) {
     let g = Grid::tunnel();
     let dim = signature_len(g.rows, g.cols);
     let mut rng = Rng::new(3);
+    let mut row = || -> Vec<f32> { (0..dim).map(|_| rng.normal() as f32 * 0.03).collect() };
+    let q = [row(), row()];
     let mut index = CoarseIndex::default();
     for _ in 0..100_000 {
-        let row: Vec<f32> = (0..dim).map(|_| rng.normal() as f32 * 0.03).collect();
-        index.push(&row);
+        index.push(&row());
     }
-    let q = [index.row(5).to_vec(), index.row(6).to_vec()];
     for n in [100usize, 1000, 10_000, 100_000] {
         let indices: Vec<usize> = (0..n).collect();
         group.throughput(Throughput::Elements(n as u64));

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import platform
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,9 +34,11 @@ from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
+from decod_rs.reinspection import Reinspection, reinspect, write_run_survey
 from decod_rs.run_files import LandmarkTable, LoopTable, write_landmarks_csv, write_loops_csv
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
+from decod_rs.survey import Survey, load_survey, survey_config
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
 
@@ -256,10 +258,14 @@ def _configure(
     config_path: str | Path | None,
     topics: tuple[str | None, str | None, Path | None, str | None],
     sequential: bool | None,
+    survey: Survey | None = None,
 ) -> tuple[Config, dict[str, Any] | None]:
-    """The config: measured and derived (``auto``) or a preset, plus the user's TOML."""
+    """The config: measured and derived (``auto``) or a preset, plus the user's TOML; with a
+    survey and neither a preset nor a TOML, the survey's own (same grid and matcher)."""
     auto: dict[str, Any] | None = None
-    if preset == "auto":
+    if survey is not None and preset == "auto" and config_path is None:
+        cfg = survey_config(survey)
+    elif preset == "auto":
         probe = probe_corridor(log, *topics)
         cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
     else:
@@ -345,19 +351,36 @@ def _write(
     correction: CorrectionResult,
     constraints: list[LoopConstraint],
     cfg: Config,
-) -> list[Joint]:
+    stage: Reinspection | None = None,
+) -> tuple[list[Joint], dict[str, Any] | None]:
     """The contract's files: trajectories, loops, landmarks, joints, the graph (on the
-    odometry the graph started from: ``odometry[1]``)."""
+    odometry the graph started from: ``odometry[1]``), this run's survey; with ``stage``
+    (``--survey``) the cross-session loop rows, survey joint ids and the change report
+    (returned: its ``report.json`` section)."""
     (scan_stamps, scan_odom), graph_odom = odometry
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
     write_tum(out / "corrected.tum", scan_stamps, correction.poses)
-    write_loops_csv(out / "loops.csv", _loop_table(matched.results, matched.keep, matched.reasons))
+    table = _loop_table(matched.results, matched.keep, matched.reasons)
+    if stage is not None:
+        c = stage.cross
+        table = stage.loop_rows(table, _loop_table(c.results, c.keep, c.reasons))
+    write_loops_csv(out / "loops.csv", table)
     lms = ex.landmarks
-    chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
+    if stage is not None and stage.placed:
+        chainage = stage.chainage(lms, scan_stamps, correction.poses)
+    else:
+        chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
     joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split)
-    write_joints_csv(out / "joints.csv", joints)
+    survey_ids = None if stage is None else stage.survey_ids(joint_of)
+    write_joints_csv(out / "joints.csv", joints, survey_ids)
+    write_run_survey(
+        out, lms, joint_of, anchor_stamps, (scan_stamps, correction.poses), joints, cfg
+    )
+    changes = None
+    if stage is not None:
+        changes = stage.write_changes(out, lms, joint_of, chainage, cfg)
     write_landmarks_csv(
         out / "landmarks.csv",
         LandmarkTable(
@@ -375,7 +398,7 @@ def _write(
         anchor_odom = interpolate_poses(scan_stamps, graph_odom, anchor_stamps)
         write_g2o(out / "graph.g2o", anchor_odom, constraints, cfg.graph)
         write_graph_json(out / "graph.json", anchor_odom, constraints, cfg.graph)
-    return joints
+    return joints, changes
 
 
 def run_log(
@@ -396,6 +419,7 @@ def run_log(
     progress: bool = True,
     map: bool = False,
     rerun: str | Path | None = None,
+    survey: str | Path | None = None,
 ) -> RunSummary:
     """Run DeCOD on ``log`` and write the contract's files into ``out_dir`` (paper Alg. 1:
     extract -> match -> select -> optimise -> write).
@@ -408,7 +432,9 @@ def run_log(
     ``sequential`` overrides ``graph.sequential`` (False: the paper's loops-only graph).
     ``map=True`` also writes the corrected and odometry maps (PLY) and the map-consistency
     figure; ``rerun=FILE.rrd`` a 3D recording (rerun-sdk, extra ``rerun``): see
-    :mod:`decod_rs.visuals`.
+    :mod:`decod_rs.visuals`. ``survey=OLD_RUN_DIR`` re-inspects an earlier run's corridor:
+    the trajectory comes out in its frame, with its joint ids and a change report
+    (:mod:`decod_rs.reinspection`); without ``preset``/``config_path`` its config is used.
     """
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
@@ -418,6 +444,7 @@ def run_log(
         from decod_rs.recording import require_rerun
 
         require_rerun()  # fail before the run, not after it
+    srv = None if survey is None else load_survey(survey)  # fail before the run
     log, out = Path(log), Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if imu_topic is None and use_imu:
@@ -427,7 +454,7 @@ def run_log(
     topics = (points_topic, odom_topic, tum, imu_topic)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    cfg, auto = _configure(log, preset, config_path, topics, sequential)
+    cfg, auto = _configure(log, preset, config_path, topics, sequential, srv)
     timings["configure"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -444,7 +471,16 @@ def run_log(
     head = {"preset": preset, "auto": auto, "imu_topic": imu_topic}
     visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
     return finish_run(
-        Extracted(log, processor, ex, scans), out, cfg, mode, loops, plots, timings, head, visuals
+        Extracted(log, processor, ex, scans),
+        out,
+        cfg,
+        mode,
+        loops,
+        plots,
+        timings,
+        head,
+        visuals,
+        survey=srv,
     )
 
 
@@ -477,6 +513,7 @@ def finish_run(
     timings: dict[str, float],
     report_head: dict[str, Any],
     visuals: Visuals,
+    survey: Survey | None = None,
 ) -> RunSummary:
     """Stages 2-5 of Algorithm 1 on an extraction: match -> select -> optimise -> write
     (report.json last, with ``report_head`` merged in). ``decod run`` and ``decod sweep``
@@ -491,8 +528,18 @@ def finish_run(
     correction, scale, start = _optimise(scans, ex, matched.split, constraints, seq, cfg)
     timings["optimise"] = time.perf_counter() - t0
 
+    stage = None
+    if survey is not None:
+        # Against the earlier survey: match, keep the consistent pairs, move into its frame.
+        t0 = time.perf_counter()
+        anchors = (ex.anchor_stamps, ex.anchor_poses)
+        stage = reinspect(survey, ex.landmarks, anchors, scans, correction.poses, cfg)
+        if stage.poses is not None:
+            correction = replace(correction, poses=stage.poses)
+        timings["survey"] = time.perf_counter() - t0
+
     t0 = time.perf_counter()
-    joints = _write(out, ex, matched, (scans, start), correction, constraints, cfg)
+    joints, changes = _write(out, ex, matched, (scans, start), correction, constraints, cfg, stage)
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
@@ -517,6 +564,7 @@ def finish_run(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
     report.update(loops_enabled=loops)
+    report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
     report.update(report_head)
