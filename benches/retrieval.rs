@@ -86,7 +86,7 @@ fn bench(c: &mut Criterion) {
     let dim = signature_len(g.rows, g.cols);
     let mut rng = Rng::new(3);
     let mut row = || -> Vec<f32> { (0..dim).map(|_| rng.normal() as f32 * 0.03).collect() };
-    let q = [row(), row()];
+    let q = vec![row(), row(), row(), row(), row(), row()];
     let mut index = CoarseIndex::default();
     for _ in 0..100_000 {
         index.push(&row());

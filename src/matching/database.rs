@@ -213,7 +213,8 @@ impl LandmarkDatabase {
             check_grids(&first.landmark, &landmark)?;
         }
         let prepared = PreparedLandmark::new(Arc::new(landmark), &self.config, &self.shape)?;
-        self.coarse.push(&prepared.coarse[0]);
+        self.coarse
+            .push(prepared.coarse.first().map_or(&[][..], |v| &v[..]));
         self.entries.push(prepared);
         self.boundaries.push(boundary);
         Ok(self.entries.len() - 1)
@@ -256,7 +257,8 @@ impl LandmarkDatabase {
             .collect::<Result<Vec<_>>>()?;
         let start = self.entries.len();
         for p in &prepared {
-            self.coarse.push(&p.coarse[0]);
+            self.coarse
+                .push(p.coarse.first().map_or(&[][..], |v| &v[..]));
         }
         self.entries.extend(prepared);
         self.boundaries.extend(boundaries);
@@ -353,7 +355,9 @@ impl LandmarkDatabase {
                 .short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
         } else {
             let mut index = CoarseIndex::default();
-            entries.iter().for_each(|e| index.push(&e.coarse[0]));
+            entries
+                .iter()
+                .for_each(|e| index.push(e.coarse.first().map_or(&[][..], |v| &v[..])));
             index.short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
         };
         (short, eligible)

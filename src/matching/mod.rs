@@ -122,8 +122,9 @@ pub struct PreparedLandmark {
     pub keypoints: Vec<Keypoint>,
     /// Candidate GEMM factor of the keypoints' patches.
     pub patches: CandidatePatches,
-    /// Coarse signatures under both headings ([`retrieval`]): `[forward, reversed]`.
-    pub coarse: [Vec<f32>; 2],
+    /// Coarse signatures ([`retrieval::query_signatures`]): both headings at a few axial
+    /// shifts; the first (forward, unshifted) is what a database entry is indexed by.
+    pub coarse: Vec<Vec<f32>>,
     /// Earliest and latest scan stamp of the submap (eligibility's fast path).
     scan_span: (f64, f64),
 }
@@ -170,7 +171,7 @@ impl PreparedLandmark {
             .iter()
             .map(|kp| shape.extract(&field, &observed, grid, kp))
             .collect();
-        let coarse = retrieval::signatures(&field, &observed, d.rows, d.cols);
+        let coarse = retrieval::query_signatures(&field, &observed, d.rows, d.cols);
         let scan_span = landmark
             .scan_stamps
             .iter()
@@ -211,7 +212,7 @@ impl PreparedLandmark {
         let patches = 4 * m.nrows() * m.ncols();
         let bits = 8 * (self.observed_bits.len() + self.flipped_bits.len());
         let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
-        let coarse = 4 * (self.coarse[0].len() + self.coarse[1].len());
+        let coarse = 4 * self.coarse.iter().map(Vec::len).sum::<usize>();
         landmark + patches + bits + keypoints + coarse
     }
 }
