@@ -119,6 +119,9 @@ pub struct LandmarkDatabase {
     boundaries: Vec<u64>,
     /// The entries' forward coarse signatures, contiguous ([`super::retrieval`]).
     coarse: CoarseIndex,
+    /// The distinct boundary ids (the null model's family when every entry is eligible,
+    /// without sorting 10,000 ids per query).
+    distinct: std::collections::HashSet<u64>,
 }
 
 /// Which database entries a query may be compared with.
@@ -171,6 +174,7 @@ impl LandmarkDatabase {
             entries: Vec::new(),
             boundaries: Vec::new(),
             coarse: CoarseIndex::default(),
+            distinct: std::collections::HashSet::new(),
         }
     }
 
@@ -217,6 +221,7 @@ impl LandmarkDatabase {
             .push(prepared.coarse.first().map_or(&[][..], |v| &v[..]));
         self.entries.push(prepared);
         self.boundaries.push(boundary);
+        self.distinct.insert(boundary);
         Ok(self.entries.len() - 1)
     }
 
@@ -261,6 +266,7 @@ impl LandmarkDatabase {
                 .push(p.coarse.first().map_or(&[][..], |v| &v[..]));
         }
         self.entries.extend(prepared);
+        self.distinct.extend(boundaries.iter().copied());
         self.boundaries.extend(boundaries);
         Ok((start..self.entries.len()).collect())
     }
@@ -402,7 +408,11 @@ impl LandmarkDatabase {
         } else {
             compared.iter().map(work).collect()
         };
-        let family = distinct_boundaries(&self.boundaries, &eligible);
+        let family = if eligible.len() == self.boundaries.len() {
+            self.distinct.len()
+        } else {
+            distinct_boundaries(&self.boundaries, &eligible)
+        };
         let mut result = decide(&q, entries, &self.boundaries, &pairs, family, cfg);
         result.eligible = eligible.len();
         if eligible.is_empty() && !entries.is_empty() {

@@ -3,28 +3,32 @@
 //! mutual nearest neighbours, verification) a short list.
 //!
 //! **Signature.** The normalised field (Eq. 2 residual, after the `p` smoothing) pooled into
-//! `BLOCK_ROWS x BLOCK_COLS` cells per block, two channels per block: the mean offset (where
+//! blocks of `BLOCK_ROWS x BLOCK_COLS` cells, two channels per block: the mean offset (where
 //! the texture bulges or recedes) and the RMS offset (where the texture is strong: chips,
-//! groove irregularities, the features keypoints land on). Each channel is centred and scaled
-//! to unit norm over the observed blocks (unobserved blocks are 0), and the two are
-//! concatenated with equal weight, so a signature is a unit vector and the similarity of two
-//! is one dot product. The tunnel and pipe grids (16 x 256) give 8 x 32 blocks: 512 values,
-//! kept as `i8` in the database's [`CoarseIndex`] (516 bytes per landmark).
+//! groove irregularities, the features keypoints land on). Each row of blocks is standardised
+//! (the axial energy profile every joint shares would make all signatures alike), then each
+//! channel is scaled to unit norm over the observed blocks (unobserved blocks are 0) and the
+//! two are concatenated with equal weight: a signature is a unit vector and the similarity of
+//! two is one dot product. The tunnel and pipe grids (16 x 256) give 8 x 16 blocks: 256
+//! values, kept as `i8` in the database's [`CoarseIndex`] (260 bytes per landmark).
 //!
-//! **Headings.** Reversal (paper §III-B) is the 180° rotation of the grid ([`super::heading`]);
-//! each prepared landmark keeps its signature under both headings, computed from the flipped
-//! field itself (exact for any grid, not only for block sizes that divide it). The similarity
-//! of a query and a candidate is the larger of the two headings' dot products, so the ranking
-//! is invariant to the direction of travel.
+//! **Headings and shifts.** Reversal (paper §III-B) is the 180° rotation of the grid
+//! ([`super::heading`]); a query's signatures are taken under both headings, from the
+//! flipped field itself (exact for any grid), and at the axial shifts [`QUERY_SHIFTS`] (two
+//! sessions detect a boundary's origin a few rows apart). The similarity is the best over
+//! them, so the ranking is invariant to the direction of travel; database entries keep one
+//! (forward, unshifted) signature.
 //!
 //! **Why pooled fields, not an index over keypoint patches.** The exact matcher already pays
 //! a GEMM per candidate over all patches; an inverted index over quantised patches would need a
 //! codebook trained per corridor, and the patches of identical texture at another position of
-//! the circumference (a shifted gravity reference) would vote anyway. The pooled field is one
-//! streaming dot product per candidate (memory bound: half a KiB per landmark), and the
-//! blocks (8 columns = 11°, 2 rows) absorb the sub-cell misalignment and gravity errors of a
-//! revisit. Measured (`matching::tests::coarse_short_list_keeps_the_exhaustive_top1` and the
-//! `retrieval` bench): see `MatchingConfig::retrieval_short_list`.
+//! the circumference (a shifted gravity reference) would vote anyway. The pooled field is a
+//! few integer dot products per candidate on 256 bytes, and the blocks (16 columns = 22°,
+//! 2 rows) absorb the sub-cell misalignment and gravity errors of a revisit (8-column blocks
+//! gave the same short-list hits on the simulated re-inspection at twice the scan cost).
+//! Measured (`matching::tests::coarse_short_list_keeps_the_exhaustive_top1`,
+//! `tests/test_survey.py` and the `retrieval` bench): see
+//! `MatchingConfig::retrieval_short_list`.
 
 use super::heading::flip_grid;
 
