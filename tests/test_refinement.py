@@ -56,3 +56,15 @@ def test_mismatched_inputs_are_refused() -> None:
         travel_disagreement_m(_straight(STAMPS, 1.0), _straight(STAMPS[:-1], 1.0), 20)
     with pytest.raises(ValueError, match="scans_per_submap"):
         travel_disagreement_m(_straight(STAMPS, 1.0), _straight(STAMPS, 1.0), 0)
+
+
+def test_the_rebuilt_submaps_stand_only_if_they_close_more_loops() -> None:
+    from dataclasses import replace
+
+    from decod_rs.refinement import keep_rebuilt
+
+    assert keep_rebuilt(4, 47) and not keep_rebuilt(38, 38) and not keep_rebuilt(40, 37)
+    decision = rebuild_decision(_straight(STAMPS, 1.0), _straight(STAMPS, 1.2), load_config())
+    assert decision.needed and not decision.kept  # not rebuilt yet
+    assert replace(decision, loops=(4, 47)).report()["kept"] is True
+    assert replace(decision, loops=(38, 37)).report()["kept"] is False

@@ -37,7 +37,8 @@ from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
-from decod_rs.refinement import rebuild_decision
+from decod_rs.refinement import RebuildDecision, rebuild_decision
+from decod_rs.reinspection import Reinspection, reinspect, write_run_survey
 from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
 from decod_rs.run_files import (
     LandmarkTable,
@@ -48,6 +49,7 @@ from decod_rs.run_files import (
 )
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
+from decod_rs.survey import Survey, load_survey, survey_config
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
 
@@ -172,8 +174,12 @@ def _match(
     return results, mode, order
 
 
-def _loop_table(matched: _Matched) -> LoopTable:
-    results, keep, reasons = matched.results, matched.keep, matched.reasons
+def _loop_table(
+    results: list[QueryResult],
+    keep: list[bool],
+    reasons: list[str],
+    by_prior: frozenset[int] = frozenset(),
+) -> LoopTable:
     n = len(results)
     nan3 = np.full(3, np.nan)
 
@@ -206,7 +212,7 @@ def _loop_table(matched: _Matched) -> LoopTable:
             "chance": [f"{r.chance:.3g}" for r in results],
             "reason": reasons,
             "accepted_by": [
-                ("position_prior" if k in matched.by_prior else "descriptor") if ok else ""
+                ("position_prior" if k in by_prior else "descriptor") if ok else ""
                 for k, ok in enumerate(keep)
             ],
         },
@@ -281,10 +287,14 @@ def _configure(
     config_path: str | Path | None,
     topics: tuple[str | None, str | None, Path | None, str | None],
     sequential: bool | None,
+    survey: Survey | None = None,
 ) -> tuple[Config, dict[str, Any] | None]:
-    """The config: measured and derived (``auto``) or a preset, plus the user's TOML."""
+    """The config: measured and derived (``auto``) or a preset, plus the user's TOML; with a
+    survey and neither a preset nor a TOML, the survey's own (same grid and matcher)."""
     auto: dict[str, Any] | None = None
-    if preset == "auto":
+    if survey is not None and preset == "auto" and config_path is None:
+        cfg = survey_config(survey)
+    elif preset == "auto":
         probe = probe_corridor(log, *topics)
         cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
     else:
@@ -454,6 +464,31 @@ def _rebuild(
     return ex
 
 
+def _rebuilt(
+    extraction: Extracted,
+    ex: _Extracted,
+    matched: _Matched,
+    solved: _Solved,
+    cfg: Config,
+    mode: str,
+    progress: bool,
+) -> tuple[_Extracted, _Matched, _Solved, RebuildDecision]:
+    """Stages 1-4 again on submaps rebuilt on the corrected trajectory when it stitches
+    them differently enough; the rebuilt round replaces the first only if it closes more
+    loops (:mod:`decod_rs.refinement`)."""
+    scans = extraction.scans
+    decision = rebuild_decision(scans[1], solved.correction.poses, cfg)
+    if not decision.needed:
+        return ex, matched, solved, decision
+    ex2 = _rebuild(extraction, cfg, solved.correction.poses, progress)
+    matched2 = _match_and_select(ex2, cfg, mode, *scans)
+    matched2, solved2 = _solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
+    decision = replace(decision, loops=(sum(matched.keep), sum(matched2.keep)))
+    if decision.kept:
+        return ex2, matched2, solved2, decision
+    return ex, matched, solved, decision
+
+
 def _write(
     out: Path,
     ex: _Extracted,
@@ -462,19 +497,36 @@ def _write(
     correction: CorrectionResult,
     constraints: list[LoopConstraint],
     cfg: Config,
-) -> list[Joint]:
+    stage: Reinspection | None = None,
+) -> tuple[list[Joint], dict[str, Any] | None]:
     """The contract's files: trajectories, loops, landmarks, joints, the graph (on the
-    odometry the graph started from: ``odometry[1]``)."""
+    odometry the graph started from: ``odometry[1]``), this run's survey; with ``stage``
+    (``--survey``) the cross-session loop rows, survey joint ids and the change report
+    (returned: its ``report.json`` section)."""
     (scan_stamps, scan_odom), graph_odom = odometry
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
     write_tum(out / "corrected.tum", scan_stamps, correction.poses)
-    write_loops_csv(out / "loops.csv", _loop_table(matched))
+    table = _loop_table(matched.results, matched.keep, matched.reasons, matched.by_prior)
+    if stage is not None:
+        c = stage.cross
+        table = stage.loop_rows(table, _loop_table(c.results, c.keep, c.reasons))
+    write_loops_csv(out / "loops.csv", table)
     lms = ex.landmarks
-    chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
+    if stage is not None and stage.placed:
+        chainage = stage.chainage(lms, scan_stamps, correction.poses)
+    else:
+        chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
     joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split)
-    write_joints_csv(out / "joints.csv", joints)
+    survey_ids = None if stage is None else stage.survey_ids(joint_of)
+    write_joints_csv(out / "joints.csv", joints, survey_ids)
+    write_run_survey(
+        out, lms, joint_of, anchor_stamps, (scan_stamps, correction.poses), joints, cfg
+    )
+    changes = None
+    if stage is not None:
+        changes = stage.write_changes(out, lms, joint_of, chainage, cfg)
     write_landmarks_csv(
         out / "landmarks.csv",
         LandmarkTable(
@@ -492,7 +544,7 @@ def _write(
         anchor_odom = interpolate_poses(scan_stamps, graph_odom, anchor_stamps)
         write_g2o(out / "graph.g2o", anchor_odom, constraints, cfg.graph)
         write_graph_json(out / "graph.json", anchor_odom, constraints, cfg.graph)
-    return joints
+    return joints, changes
 
 
 def run_log(
@@ -513,6 +565,7 @@ def run_log(
     progress: bool = True,
     map: bool = False,
     rerun: str | Path | None = None,
+    survey: str | Path | None = None,
 ) -> RunSummary:
     """Run DeCOD on ``log`` and write the contract's files into ``out_dir`` (paper Alg. 1:
     extract -> match -> select -> optimise -> write).
@@ -525,7 +578,9 @@ def run_log(
     ``sequential`` overrides ``graph.sequential`` (False: the paper's loops-only graph).
     ``map=True`` also writes the corrected and odometry maps (PLY) and the map-consistency
     figure; ``rerun=FILE.rrd`` a 3D recording (rerun-sdk, extra ``rerun``): see
-    :mod:`decod_rs.visuals`.
+    :mod:`decod_rs.visuals`. ``survey=OLD_RUN_DIR`` re-inspects an earlier run's corridor:
+    the trajectory comes out in its frame, with its joint ids and a change report
+    (:mod:`decod_rs.reinspection`); without ``preset``/``config_path`` its config is used.
     """
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
@@ -535,6 +590,7 @@ def run_log(
         from decod_rs.recording import require_rerun
 
         require_rerun()  # fail before the run, not after it
+    srv = None if survey is None else load_survey(survey)  # fail before the run
     log, out = Path(log), Path(out_dir)
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
@@ -543,7 +599,7 @@ def run_log(
     topics = (points_topic, odom_topic, tum, imu_topic)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    cfg, auto = _configure(log, preset, config_path, topics, sequential)
+    cfg, auto = _configure(log, preset, config_path, topics, sequential, srv)
     timings["configure"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -568,7 +624,17 @@ def run_log(
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
     with staged_run_dir(out) as staging:
         summary = finish_run(
-            extraction, staging, cfg, mode, loops, plots, timings, head, visuals, progress
+            extraction,
+            staging,
+            cfg,
+            mode,
+            loops,
+            plots,
+            timings,
+            head,
+            visuals,
+            progress,
+            survey=srv,
         )
     summary.out_dir = out
     return summary
@@ -606,6 +672,7 @@ def finish_run(
     report_head: dict[str, Any],
     visuals: Visuals,
     progress: bool = False,
+    survey: Survey | None = None,
 ) -> RunSummary:
     """Stages 2-5 of Algorithm 1 on an extraction: match -> select -> optimise -> write
     (report.json last, with ``report_head`` merged in). ``decod run`` and ``decod sweep``
@@ -622,17 +689,25 @@ def finish_run(
     rebuild = None
     if loops and cfg.submap.rebuild_on_correction:
         t0 = time.perf_counter()
-        rebuild = rebuild_decision(scans[1], solved.correction.poses, cfg)
-        if rebuild.needed:
-            ex = _rebuild(extraction, cfg, solved.correction.poses, progress)
-            matched = _match_and_select(ex, cfg, mode, *scans)
-            matched, solved = _solve(ex, matched, cfg, scans, loops, extraction.gap_factors)
+        ex, matched, solved, rebuild = _rebuilt(
+            extraction, ex, matched, solved, cfg, mode, progress
+        )
         timings["rebuild"] = time.perf_counter() - t0
     constraints, seq, correction = solved.constraints, solved.seq, solved.correction
     scale, start = solved.scale, solved.start
 
+    stage = None
+    if survey is not None:
+        # Against the earlier survey: match, keep the consistent pairs, move into its frame.
+        t0 = time.perf_counter()
+        anchors = (ex.anchor_stamps, ex.anchor_poses)
+        stage = reinspect(survey, ex.landmarks, anchors, scans, correction.poses, cfg)
+        if stage.poses is not None:
+            correction = replace(correction, poses=stage.poses)
+        timings["survey"] = time.perf_counter() - t0
+
     t0 = time.perf_counter()
-    joints = _write(out, ex, matched, (scans, start), correction, constraints, cfg)
+    joints, changes = _write(out, ex, matched, (scans, start), correction, constraints, cfg, stage)
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
@@ -657,6 +732,7 @@ def finish_run(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
     report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild.report())
+    report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
     report.update(report_head)

@@ -15,6 +15,12 @@ distance travelled within one submap by more than half a descriptor row
 and matches them again. Only the submaps' *content* changes: the pose graph keeps the
 odometry's factors, and the new anchors are placed on the odometry like the first ones, so no
 measurement is counted twice. ``submap.rebuild_on_correction = false`` turns it off.
+
+The corrected trajectory is not better everywhere: far from any loop it can stitch worse than
+the odometry (on a simulated hume re-inspection one boundary seen once, at the end of the
+return, moved by 6 cm). The number of loops that survive the whole selection measures how
+well the two passes' submaps agree, so the rebuilt submaps replace the first ones only if
+they close more loops (:func:`keep_rebuilt`); else the first round stands.
 """
 
 from __future__ import annotations
@@ -27,7 +33,13 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["RebuildDecision", "rebuild_decision", "rebuild_threshold_m", "travel_disagreement_m"]
+__all__ = [
+    "RebuildDecision",
+    "keep_rebuilt",
+    "rebuild_decision",
+    "rebuild_threshold_m",
+    "travel_disagreement_m",
+]
 
 #: Percentile of the per-window disagreement that decides (a few windows at a turn, where
 #: the trajectories differ in shape rather than scale, must not decide alone).
@@ -70,13 +82,26 @@ class RebuildDecision:
     needed: bool
     disagreement_m: float
     threshold_m: float
+    loops: tuple[int, int] | None = None
+
+    @property
+    def kept(self) -> bool:
+        """Whether the rebuilt submaps replace the first ones (:func:`keep_rebuilt`)."""
+        return self.loops is not None and keep_rebuilt(*self.loops)
 
     def report(self) -> dict[str, Any]:
         return {
             "rebuilt": self.needed,
+            "kept": self.kept,
+            "loops_first_and_rebuilt": None if self.loops is None else list(self.loops),
             "travel_disagreement_m": self.disagreement_m,
             "threshold_m": self.threshold_m,
         }
+
+
+def keep_rebuilt(first_loops: int, rebuilt_loops: int) -> bool:
+    """The rebuilt submaps are kept only if they close more loops than the first ones."""
+    return rebuilt_loops > first_loops
 
 
 def rebuild_decision(odometry: FloatArray, corrected: FloatArray, cfg: Any) -> RebuildDecision:
