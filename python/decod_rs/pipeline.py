@@ -687,7 +687,7 @@ def finish_run(
     timings["optimise"] = time.perf_counter() - t0
 
     rebuild = None
-    if loops and cfg.submap.rebuild_on_correction:
+    if loops and cfg.submap.rebuild_on_correction and survey is None:
         t0 = time.perf_counter()
         ex, matched, solved, rebuild = _rebuilt(
             extraction, ex, matched, solved, cfg, mode, progress
