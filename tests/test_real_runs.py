@@ -148,3 +148,16 @@ def test_interrupted_run_never_looks_finished(
     _run(sim / "log", out)
     assert (out / "notes.txt").read_text() == "mine" and not partial.exists()
     shutil.rmtree(out)
+
+
+def test_run_into_the_current_directory(
+    sim: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    _run(sim / "log", Path("."))
+    assert (here / "report.json").is_file() and not (tmp_path / "here.partial").exists()
+    (tmp_path / "file").write_text("")
+    with pytest.raises(NotADirectoryError):
+        _run(sim / "log", tmp_path / "file")

@@ -38,6 +38,7 @@ from decod_rs.progress import Progress
 from decod_rs.run_files import (
     LandmarkTable,
     LoopTable,
+    check_run_dir,
     staged_run_dir,
     write_landmarks_csv,
     write_loops_csv,
@@ -428,7 +429,7 @@ def run_log(
         from decod_rs.recording import require_rerun
 
         require_rerun()  # fail before the run, not after it
-    log, out = Path(log), Path(out_dir)
+    log, out = Path(log), check_run_dir(Path(out_dir))
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
