@@ -115,6 +115,11 @@ def test_gap_bridge_is_weak_when_the_odometry_jumps() -> None:
     assert bridges == ["weak"] and factors is not None
     after = int(np.searchsorted(stamps, 6.1))
     assert factors[after] == WEAK_GAP_SIGMA_FACTOR and np.sum(factors != 1.0) == 1
+    # Up to the first submap anchor after the gap, so the anchors' edge is weak too.
+    _, factors = gap_bridges(stamps, restarted, [(3.9, 6.1, "gap")], np.array([2.0, 6.55, 9.0]))
+    assert factors is not None
+    weak = stamps[factors == WEAK_GAP_SIGMA_FACTOR]
+    np.testing.assert_allclose(weak, [6.1, 6.2, 6.3, 6.4, 6.5, 6.6])
     bridges, _ = gap_bridges(stamps, poses, [(-1.0, 0.0, "gap")])
     assert bridges == ["none"]
 

@@ -452,8 +452,10 @@ def run_log(
     warn_once(log, health)  # damage, gaps: the run goes on with what the log holds
     if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
+    gap_periods = float(cfg.submap.odometry_gap_periods)
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
     ingest, gap_factors = ingest_section(
-        health, processor.points_topic, scans, float(cfg.submap.odometry_gap_periods)
+        health, processor.points_topic, scans, gap_periods, anchors
     )
 
     head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}
