@@ -100,6 +100,22 @@ def test_odometry_gap_is_listed_and_never_inside_a_submap(sim: Path, tmp_path: P
             assert s.max() <= gap["start_s"] or s.min() >= gap["end_s"], s
 
 
+def test_restarted_odometry_is_bridged_by_a_weak_factor(sim: Path, tmp_path: Path) -> None:
+    rows = np.loadtxt(sim / "odom.tum")
+    t0 = rows[0, 0]
+    after = rows[:, 0] >= t0 + 26.0
+    keep = ~((rows[:, 0] > t0 + 20.05) & ~after)
+    rows[after, 1] += 50.0  # the LIO restarted in a frame 50 m away
+    tum = tmp_path / "restart.tum"
+    np.savetxt(tum, rows[keep], fmt="%.9f")
+    with pytest.warns(decod_rs.LogWarning):
+        report = _run(sim / "log", tmp_path / "out", odom_tum=tum)
+    (gap,) = report["ingest"]["odometry_gaps"]
+    assert gap["bridge"] == "weak" and gap["scans_skipped"] > 0
+    corrected = np.loadtxt(tmp_path / "out" / "corrected.tum")
+    assert np.all(np.isfinite(corrected))
+
+
 def test_gap_bridge_is_weak_when_the_odometry_jumps() -> None:
     stamps = np.arange(0.0, 10.0, 0.1)
     poses = np.tile(np.eye(4), (stamps.size, 1, 1))
