@@ -16,6 +16,7 @@ import pytest
 import decod_rs
 import decod_rs.pipeline
 from decod_rs import _core
+from decod_rs.cli import main as cli_main
 from decod_rs.config import load_config
 from decod_rs.ingest import WEAK_GAP_SIGMA_FACTOR, gap_bridges
 from decod_rs.pipeline import run_log
@@ -182,3 +183,16 @@ def test_run_into_the_current_directory(
     (tmp_path / "file").write_text("")
     with pytest.raises(NotADirectoryError):
         _run(sim / "log", tmp_path / "file")
+
+
+def test_cli_prints_the_damage_once_on_one_line(
+    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    raw = (sim / "log.bag").read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(raw[: len(raw) // 2])
+    args = ["run", str(cut), "--preset", "pipe", "--no-plots", "--out", str(tmp_path / "o")]
+    assert cli_main(args) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "warning" in line]
+    assert len(lines) == 1 and lines[0].startswith(f"decod run: warning: {cut}: truncated at byte")

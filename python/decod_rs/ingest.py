@@ -222,6 +222,7 @@ def warn_once(log: object, health: StreamHealth) -> None:
         parts.append(f"{c['undecodable']} undecodable and {c['out_of_order']} out-of-order clouds")
     more = "" if len(health.faults) <= 3 else f" (+{len(health.faults) - 3} more faults)"
     text = "; ".join(parts)
+    where = "" if health.faults else f"{log}: "  # a fault's message names its file
     warnings.warn(
-        f"{log}: {text}{more}; the run went on, see report.json 'ingest'", LogWarning, stacklevel=3
+        f"{where}{text}{more}; the run went on, see report.json 'ingest'", LogWarning, stacklevel=3
     )
