@@ -47,6 +47,16 @@ pub struct SubmapConfig {
     pub max_range_m: f64,
     /// A submap with fewer points than this after filtering is rejected.
     pub min_points: usize,
+    /// `decod run`: when the first corrected trajectory disagrees with the odometry about
+    /// the distance travelled within one submap by more than half a descriptor row, the
+    /// submaps are built again on the corrected trajectory and matched again (the graph
+    /// keeps the odometry's factors; `refinement` module of the Python package). A pass
+    /// whose odometry is 15 % short smears each boundary along the axis by 15 % of a
+    /// submap's travel (0.4 m in the simulated shield tunnel at 1.3 m/s, more than a 0.3 m
+    /// row): on four uneven-drift matrix cells rebuilding raised joint coverage from
+    /// 16-59 % to 61-68 %. Absent from a stored config: false.
+    #[serde(default)]
+    pub rebuild_on_correction: bool,
     /// An odometry interval longer than this many of the odometry's median periods is a gap
     /// (a restarted LIO, a dropout): no pose is interpolated across it, its scans are left out
     /// of submaps and no submap spans it (issue 11). 5 periods is 0.5 s for 10 Hz odometry,
@@ -263,6 +273,51 @@ pub struct MatchingConfig {
     /// together) of each other can corroborate, which caps the allowance at
     /// `consistency_tolerance_m + consistency_drift_fraction * consistency_window_m`.
     pub consistency_window_m: f64,
+    /// `decod run`: a query rejected `not_unique` (its Top-1 is beyond chance, but so is a
+    /// runner-up at another boundary) is kept when the trajectory corrected by the other
+    /// loops puts the query within `consistency_tolerance_m` of its Top-1 and the runner-up
+    /// more than twice that away (`disambiguation` module of the Python package). In
+    /// segmental and arched tunnels neighbouring rings share most of their structure, so
+    /// the runner-up is often beyond chance; in the generalisation matrix this rejected
+    /// ~70 % of the right Top-1s (shield, 64 beams: 78 right, 31 accepted). Absent from a
+    /// stored config: false.
+    #[serde(default)]
+    pub resolve_with_prior: bool,
+    /// Candidate retrieval per query (not in the paper, whose database holds 20 candidates):
+    /// `"exhaustive"` compares the query with every eligible candidate (the paper; kept for
+    /// ablation); `"coarse"` first ranks them by a pooled, heading-invariant signature
+    /// (`matching::retrieval`) and runs the exact matcher on the best
+    /// `retrieval_short_list` only, once more than `retrieval_min_candidates` are eligible.
+    /// The null model's family still counts every eligible boundary, so acceptance is as
+    /// strict as exhaustive. Absent from a stored config: `"coarse"`.
+    #[serde(default = "default_retrieval")]
+    pub retrieval: String,
+    /// Length of the coarse short list (`retrieval = "coarse"`). 32: on the simulated hume
+    /// re-inspection (131 survey views, 124 queries, four changed joints) it held the
+    /// exhaustive Top-1 of all 70 accepted queries (8 and 16: 68, both misses a view of the
+    /// displaced segment's joint, K 8-9); on synthetic corridors of 400 joints all 50 true
+    /// queries at 32. At ~0.09 ms per exact pair (idle two cores) it costs ~3 ms, which
+    /// leaves the coarse scan of 10,000 signatures inside the 5 ms target. Absent from a
+    /// stored config: 32.
+    #[serde(default = "default_retrieval_short_list")]
+    pub retrieval_short_list: usize,
+    /// `retrieval = "coarse"` applies only when more candidates than this are eligible;
+    /// within a run (tens to hundreds of boundaries) the exact matcher sees them all.
+    /// Absent from a stored config: 500.
+    #[serde(default = "default_retrieval_min_candidates")]
+    pub retrieval_min_candidates: usize,
+}
+
+fn default_retrieval() -> String {
+    "coarse".into()
+}
+
+fn default_retrieval_short_list() -> usize {
+    32
+}
+
+fn default_retrieval_min_candidates() -> usize {
+    500
 }
 
 fn fixed_acceptance() -> String {
@@ -366,6 +421,7 @@ impl DecodConfig {
                 min_range_m: 0.5,
                 max_range_m: 12.0,
                 min_points: 500,
+                rebuild_on_correction: true,
                 odometry_gap_periods: 5.0,
             },
             axis: AxisConfig {
@@ -445,6 +501,10 @@ impl DecodConfig {
                 false_alarm_rate: default_false_alarm_rate(),
                 uniqueness_alpha: default_uniqueness_alpha(),
                 min_inliers_floor: default_min_inliers_floor(),
+                resolve_with_prior: true,
+                retrieval: default_retrieval(),
+                retrieval_short_list: default_retrieval_short_list(),
+                retrieval_min_candidates: default_retrieval_min_candidates(),
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),
@@ -637,6 +697,10 @@ impl DecodConfig {
                 self.matching.false_alarm_rate > 0.0 && self.matching.false_alarm_rate < 1.0,
             ),
             (
+                "matching.retrieval_short_list",
+                self.matching.retrieval_short_list >= 1,
+            ),
+            (
                 "matching.uniqueness_alpha",
                 self.matching.uniqueness_alpha > 0.0 && self.matching.uniqueness_alpha < 1.0,
             ),
@@ -702,6 +766,11 @@ impl DecodConfig {
                 "matching.acceptance",
                 &self.matching.acceptance,
                 &["null_model", "fixed"][..],
+            ),
+            (
+                "matching.retrieval",
+                &self.matching.retrieval,
+                &["coarse", "exhaustive"][..],
             ),
             (
                 "graph.loop_factor",

@@ -23,6 +23,7 @@ pub mod matching;
 pub mod pipeline;
 pub mod scan;
 pub mod submap;
+pub mod survey;
 
 #[cfg(feature = "python")]
 mod python;

@@ -46,7 +46,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from decod_rs.run_files import LandmarkTable, LoopTable, read_landmarks_csv, read_loops_csv
+from decod_rs.run_files import (
+    LandmarkTable,
+    LoopTable,
+    read_landmarks_csv,
+    read_loops_csv,
+    within_run,
+)
 from decod_rs.tum import check_poses, interpolate_poses, read_tum, umeyama_alignment
 
 FloatArray = NDArray[np.float64]
@@ -361,7 +367,7 @@ def evaluate_run(
     sep = _find_key(report, "min_time_separation_s")
     min_sep = float(sep) if sep is not None else DEFAULT_MIN_SEPARATION_S
 
-    loops = read_loops_csv(run / "loops.csv")
+    loops = within_run(read_loops_csv(run / "loops.csv"))
     landmarks = (
         read_landmarks_csv(run / "landmarks.csv") if (run / "landmarks.csv").exists() else None
     )

@@ -5,7 +5,8 @@ A physical boundary is a set of tracks (:mod:`decod_rs.tracks`: the views of one
 within one pass) joined by the accepted loops between them (the outbound and the return
 track of one joint). Per boundary: its chainage (median over its views of the distance from
 the start along the corrected trajectory), the number of views, tracks and passes that saw
-it, and whether a loop confirmed it.
+it, and whether a loop confirmed it. A run with ``--survey`` measures the chainage along the
+survey's path (in its frame) and adds the survey's joint id (``survey_joint_id``).
 """
 
 from __future__ import annotations
@@ -108,12 +109,17 @@ def joint_registry(
     return joints, joint_of
 
 
-def write_joints_csv(path: str | Path, joints: Sequence[Joint]) -> None:
-    """``joints.csv`` with ``JOINTS_COLUMNS``."""
+def write_joints_csv(
+    path: str | Path, joints: Sequence[Joint], survey_ids: dict[int, int] | None = None
+) -> None:
+    """``joints.csv`` with ``JOINTS_COLUMNS``; with ``survey_ids`` (a run with ``--survey``:
+    joint id -> the survey's joint id where one of its views matched) one more column,
+    ``survey_joint_id`` (empty where the joint did not match)."""
     with Path(path).open("w", encoding="utf-8", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(JOINTS_COLUMNS)
+        w.writerow(JOINTS_COLUMNS if survey_ids is None else (*JOINTS_COLUMNS, "survey_joint_id"))
         for j in joints:
+            tail = [] if survey_ids is None else [str(survey_ids.get(j.joint_id, ""))]
             w.writerow(
                 [
                     j.joint_id,
@@ -124,5 +130,6 @@ def write_joints_csv(path: str | Path, joints: Sequence[Joint]) -> None:
                     int(j.loop_confirmed),
                     f"{j.first_stamp:.9f}",
                     f"{j.last_stamp:.9f}",
+                    *tail,
                 ]
             )

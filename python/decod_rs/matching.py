@@ -140,10 +140,19 @@ class LandmarkDatabase:
         return self._db.query(query, self._json(config))
 
     def query_batch(
-        self, queries: Iterable[Landmark], config: MatchingConfigLike = None
+        self,
+        queries: Iterable[Landmark],
+        config: MatchingConfigLike = None,
+        *,
+        cross_session: bool = False,
     ) -> list[QueryResult]:
-        """Batch mode: every query against the (outbound) database."""
-        return self._db.query_batch(list(queries), self._json(config))
+        """Batch mode: every query against the (outbound) database. ``cross_session``: the
+        database is an earlier survey, every entry is eligible (no time separation)."""
+        return self._db.query_batch(list(queries), self._json(config), cross_session)
+
+    def bytes_per_landmark(self) -> int:
+        """Memory held per stored landmark (prepared data, coarse signature, id), bytes."""
+        return self._db.bytes_per_landmark()
 
     def query_online(
         self, landmark: Landmark, config: MatchingConfigLike = None

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import json
 import platform
+import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
+from decod_rs.disambiguation import CorrectedFrame, near_loops, resolve_with_prior
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.ingest import StreamHealth, ingest_section, warn_once
@@ -35,6 +37,9 @@ from decod_rs.joints import Joint, joint_registry, write_joints_csv
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
+from decod_rs.refinement import RebuildDecision, rebuild_decision
+from decod_rs.reinspection import Reinspection, reinspect, write_run_survey
+from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
 from decod_rs.run_files import (
     LandmarkTable,
     LoopTable,
@@ -45,6 +50,7 @@ from decod_rs.run_files import (
 )
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
+from decod_rs.survey import Survey, load_survey, survey_config
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
 
@@ -145,9 +151,10 @@ def _match(
     cfg: Config,
     mode: str,
     split: float | None,
-) -> tuple[list[QueryResult], str, int]:
-    """Queries and their top-1 results, the mode used, and the database size. Every view
-    goes into the database under its track (physical boundary) id."""
+) -> tuple[list[QueryResult], str, list[int]]:
+    """Queries and their top-1 results, the mode used, and the landmark behind each
+    database index. Every view goes into the database under its track (physical boundary)
+    id."""
     db = LandmarkDatabase(cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
@@ -159,15 +166,21 @@ def _match(
         outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
         db.extend([landmarks[k] for k in outbound], [int(tracks[k]) for k in outbound])
         queries = [lm for lm in landmarks if lm.submap_stamp > split]
-        return db.query_batch(queries), mode, len(db)
+        return db.query_batch(queries), mode, outbound
     results = []
-    for k in sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp):
+    order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
+    for k in order:
         results.append(db.query(landmarks[k]))
         db.add(landmarks[k], int(tracks[k]))
-    return results, mode, len(db)
+    return results, mode, order
 
 
-def _loop_table(results: list[QueryResult], keep: list[bool], reasons: list[str]) -> LoopTable:
+def _loop_table(
+    results: list[QueryResult],
+    keep: list[bool],
+    reasons: list[str],
+    by_prior: frozenset[int] = frozenset(),
+) -> LoopTable:
     n = len(results)
     nan3 = np.full(3, np.nan)
 
@@ -199,6 +212,10 @@ def _loop_table(results: list[QueryResult], keep: list[bool], reasons: list[str]
             "eligible_candidates": [str(r.eligible) for r in results],
             "chance": [f"{r.chance:.3g}" for r in results],
             "reason": reasons,
+            "accepted_by": [
+                ("position_prior" if k in by_prior else "descriptor") if ok else ""
+                for k, ok in enumerate(keep)
+            ],
         },
     )
 
@@ -247,15 +264,22 @@ def _chainage(
 
 @dataclass
 class _Matched:
-    """Stages 2-3: the tracks, every query's Top-1 and which stay loops (and why not)."""
+    """Stages 2-3: the tracks, every query's Top-1 and which stay loops (and why not);
+    ``db_order[i]``: the landmark behind database index ``i``; ``by_prior``: the loops kept
+    by :mod:`decod_rs.disambiguation`."""
 
     split: float | None
     tracks: NDArray[np.int64]
     results: list[QueryResult]
     mode: str
-    database: int
+    db_order: list[int]
     keep: list[bool]
     reasons: list[str]
+    by_prior: frozenset[int] = frozenset()
+
+    @property
+    def database(self) -> int:
+        return len(self.db_order)
 
 
 def _configure(
@@ -264,10 +288,14 @@ def _configure(
     config_path: str | Path | None,
     topics: tuple[str | None, str | None, Path | None, str | None],
     sequential: bool | None,
+    survey: Survey | None = None,
 ) -> tuple[Config, dict[str, Any] | None]:
-    """The config: measured and derived (``auto``) or a preset, plus the user's TOML."""
+    """The config: measured and derived (``auto``) or a preset, plus the user's TOML; with a
+    survey and neither a preset nor a TOML, the survey's own (same grid and matcher)."""
     auto: dict[str, Any] | None = None
-    if preset == "auto":
+    if survey is not None and preset == "auto" and config_path is None:
+        cfg = survey_config(survey)
+    elif preset == "auto":
         probe = probe_corridor(log, *topics)
         cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
     else:
@@ -292,9 +320,36 @@ def _match_and_select(
         float(m.min_time_separation_s),
         same_boundary(ex.landmarks, m),
     )
-    results, used_mode, db_size = _match(ex.landmarks, tracks, cfg, mode, split)
+    results, used_mode, db_order = _match(ex.landmarks, tracks, cfg, mode, split)
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)
-    return _Matched(split, tracks, results, used_mode, db_size, keep, reasons)
+    return _Matched(split, tracks, results, used_mode, db_order, keep, reasons)
+
+
+def _resolve(
+    ex: _Extracted,
+    matched: _Matched,
+    cfg: Config,
+    scans: tuple[FloatArray, FloatArray],
+    corrected: FloatArray,
+) -> _Matched:
+    """Stage 3b: ambiguous queries placed by the corrected trajectory, then the whole
+    loop set selected again (:mod:`decod_rs.disambiguation`)."""
+    m = cfg.matching
+    loops = [r.query_stamp for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
+    promoted = resolve_with_prior(
+        matched.results,
+        matched.reasons,
+        [ex.landmarks[i] for i in matched.db_order],
+        CorrectedFrame(scans[0], corrected),
+        float(m.consistency_tolerance_m),
+        near_loops(loops, path_along(*scans), float(m.consistency_window_m)),
+    )
+    if not promoted:
+        return matched
+    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
+    keep, reasons = select_loops(matched.results, anchors, *scans, m, also=promoted)
+    by_prior = frozenset(k for k in promoted if keep[k])
+    return replace(matched, keep=keep, reasons=reasons, by_prior=by_prior)
 
 
 def _factors(
@@ -348,6 +403,93 @@ def _optimise(
     return correction, scale, start
 
 
+@dataclass(frozen=True)
+class _Solved:
+    """Stage 4: the factors, the optimised trajectory and the odometry it started from."""
+
+    constraints: list[LoopConstraint]
+    seq: SequentialFactors | None
+    correction: CorrectionResult
+    scale: ScaleEstimate | None
+    start: FloatArray
+
+
+def _solve(
+    ex: _Extracted,
+    matched: _Matched,
+    cfg: Config,
+    scans: tuple[FloatArray, FloatArray],
+    loops: bool,
+    gap_factors: FloatArray | None = None,
+) -> tuple[_Matched, _Solved]:
+    """Factors and optimisation; then ambiguous queries placed by the corrected trajectory
+    and, if any became loops, factors and optimisation again (stage 3b); then, one at a
+    time, loops the optimised graph cannot satisfy dropped (:mod:`decod_rs.residuals`)."""
+
+    def solve(matched: _Matched) -> _Solved:
+        constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
+        optimised = _optimise(scans, ex, matched.split, constraints, seq, cfg, gap_factors)
+        return _Solved(constraints, seq, *optimised)
+
+    solved = solve(matched)
+    if loops and cfg.matching.resolve_with_prior:
+        resolved = _resolve(ex, matched, cfg, scans, solved.correction.poses)
+        if resolved is not matched:
+            matched, solved = resolved, solve(resolved)
+    tolerance = float(cfg.matching.consistency_tolerance_m)
+    for _ in range(MAX_DROPS if loops else 0):
+        frame = CorrectedFrame(scans[0], solved.correction.poses)
+        worst = worst_unsatisfied(loop_residuals(matched.results, matched.keep, frame), tolerance)
+        if worst is None:
+            break
+        keep, reasons = list(matched.keep), list(matched.reasons)
+        keep[worst], reasons[worst] = False, "inconsistent"
+        matched = replace(matched, keep=keep, reasons=reasons, by_prior=matched.by_prior - {worst})
+        solved = solve(matched)
+    return matched, solved
+
+
+def _rebuild(
+    extraction: Extracted, cfg: Config, corrected: FloatArray, progress: bool
+) -> _Extracted:
+    """Stage 1 again, the submaps stitched by the corrected trajectory; the anchors placed
+    on the odometry like the first ones (:mod:`decod_rs.refinement`)."""
+    stamps, odometry = extraction.scans
+    with tempfile.TemporaryDirectory(prefix="decod-rebuild-") as tmp:
+        tum = Path(tmp) / "corrected.tum"
+        write_tum(tum, stamps, corrected)
+        points = extraction.processor.points_topic
+        _, ex = _extract(extraction.log, cfg, points, None, tum, extraction.imu_topic, progress)
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
+    return ex
+
+
+def _rebuilt(
+    extraction: Extracted,
+    ex: _Extracted,
+    matched: _Matched,
+    solved: _Solved,
+    cfg: Config,
+    mode: str,
+    progress: bool,
+) -> tuple[_Extracted, _Matched, _Solved, RebuildDecision]:
+    """Stages 1-4 again on submaps rebuilt on the corrected trajectory when it stitches
+    them differently enough; the rebuilt round replaces the first only if it closes more
+    loops (:mod:`decod_rs.refinement`)."""
+    scans = extraction.scans
+    decision = rebuild_decision(scans[1], solved.correction.poses, cfg)
+    if not decision.needed:
+        return ex, matched, solved, decision
+    ex2 = _rebuild(extraction, cfg, solved.correction.poses, progress)
+    matched2 = _match_and_select(ex2, cfg, mode, *scans)
+    matched2, solved2 = _solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
+    decision = replace(decision, loops=(sum(matched.keep), sum(matched2.keep)))
+    if decision.kept:
+        return ex2, matched2, solved2, decision
+    return ex, matched, solved, decision
+
+
 def _write(
     out: Path,
     ex: _Extracted,
@@ -356,19 +498,36 @@ def _write(
     correction: CorrectionResult,
     constraints: list[LoopConstraint],
     cfg: Config,
-) -> list[Joint]:
+    stage: Reinspection | None = None,
+) -> tuple[list[Joint], dict[str, Any] | None]:
     """The contract's files: trajectories, loops, landmarks, joints, the graph (on the
-    odometry the graph started from: ``odometry[1]``)."""
+    odometry the graph started from: ``odometry[1]``), this run's survey; with ``stage``
+    (``--survey``) the cross-session loop rows, survey joint ids and the change report
+    (returned: its ``report.json`` section)."""
     (scan_stamps, scan_odom), graph_odom = odometry
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
     write_tum(out / "corrected.tum", scan_stamps, correction.poses)
-    write_loops_csv(out / "loops.csv", _loop_table(matched.results, matched.keep, matched.reasons))
+    table = _loop_table(matched.results, matched.keep, matched.reasons, matched.by_prior)
+    if stage is not None:
+        c = stage.cross
+        table = stage.loop_rows(table, _loop_table(c.results, c.keep, c.reasons))
+    write_loops_csv(out / "loops.csv", table)
     lms = ex.landmarks
-    chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
+    if stage is not None and stage.placed:
+        chainage = stage.chainage(lms, scan_stamps, correction.poses)
+    else:
+        chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
     joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split)
-    write_joints_csv(out / "joints.csv", joints)
+    survey_ids = None if stage is None else stage.survey_ids(joint_of)
+    write_joints_csv(out / "joints.csv", joints, survey_ids)
+    write_run_survey(
+        out, lms, joint_of, anchor_stamps, (scan_stamps, correction.poses), joints, cfg
+    )
+    changes = None
+    if stage is not None:
+        changes = stage.write_changes(out, lms, joint_of, chainage, cfg)
     write_landmarks_csv(
         out / "landmarks.csv",
         LandmarkTable(
@@ -386,7 +545,7 @@ def _write(
         anchor_odom = interpolate_poses(scan_stamps, graph_odom, anchor_stamps)
         write_g2o(out / "graph.g2o", anchor_odom, constraints, cfg.graph)
         write_graph_json(out / "graph.json", anchor_odom, constraints, cfg.graph)
-    return joints
+    return joints, changes
 
 
 def run_log(
@@ -407,6 +566,7 @@ def run_log(
     progress: bool = True,
     map: bool = False,
     rerun: str | Path | None = None,
+    survey: str | Path | None = None,
 ) -> RunSummary:
     """Run DeCOD on ``log`` and write the contract's files into ``out_dir`` (paper Alg. 1:
     extract -> match -> select -> optimise -> write).
@@ -419,7 +579,9 @@ def run_log(
     ``sequential`` overrides ``graph.sequential`` (False: the paper's loops-only graph).
     ``map=True`` also writes the corrected and odometry maps (PLY) and the map-consistency
     figure; ``rerun=FILE.rrd`` a 3D recording (rerun-sdk, extra ``rerun``): see
-    :mod:`decod_rs.visuals`.
+    :mod:`decod_rs.visuals`. ``survey=OLD_RUN_DIR`` re-inspects an earlier run's corridor:
+    the trajectory comes out in its frame, with its joint ids and a change report
+    (:mod:`decod_rs.reinspection`); without ``preset``/``config_path`` its config is used.
     """
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
@@ -429,6 +591,7 @@ def run_log(
         from decod_rs.recording import require_rerun
 
         require_rerun()  # fail before the run, not after it
+    srv = None if survey is None else load_survey(survey)  # fail before the run
     log, out = Path(log), check_run_dir(Path(out_dir))
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
@@ -437,7 +600,7 @@ def run_log(
     topics = (points_topic, odom_topic, tum, imu_topic)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    cfg, auto = _configure(log, preset, config_path, topics, sequential)
+    cfg, auto = _configure(log, preset, config_path, topics, sequential, srv)
     timings["configure"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -460,10 +623,22 @@ def run_log(
 
     head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}
     visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
-    extraction = Extracted(log, processor, ex, scans, gap_factors)
+    extraction = Extracted(log, processor, ex, scans, gap_factors, imu_topic)
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
     with staged_run_dir(out) as staging:
-        summary = finish_run(extraction, staging, cfg, mode, loops, plots, timings, head, visuals)
+        summary = finish_run(
+            extraction,
+            staging,
+            cfg,
+            mode,
+            loops,
+            plots,
+            timings,
+            head,
+            visuals,
+            progress,
+            survey=srv,
+        )
     summary.out_dir = out
     return summary
 
@@ -478,6 +653,7 @@ class Extracted:
     extracted: _Extracted
     scans: tuple[FloatArray, FloatArray]
     gap_factors: FloatArray | None = None
+    imu_topic: str | None = None
 
 
 @dataclass(frozen=True)
@@ -498,6 +674,8 @@ def finish_run(
     timings: dict[str, float],
     report_head: dict[str, Any],
     visuals: Visuals,
+    progress: bool = False,
+    survey: Survey | None = None,
 ) -> RunSummary:
     """Stages 2-5 of Algorithm 1 on an extraction: match -> select -> optimise -> write
     (report.json last, with ``report_head`` merged in). ``decod run`` and ``decod sweep``
@@ -508,14 +686,31 @@ def finish_run(
     timings["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
-    correction, scale, start = _optimise(
-        scans, ex, matched.split, constraints, seq, cfg, extraction.gap_factors
-    )
+    matched, solved = _solve(ex, matched, cfg, scans, loops, extraction.gap_factors)
     timings["optimise"] = time.perf_counter() - t0
 
+    rebuild = None
+    if loops and cfg.submap.rebuild_on_correction:
+        t0 = time.perf_counter()
+        ex, matched, solved, rebuild = _rebuilt(
+            extraction, ex, matched, solved, cfg, mode, progress
+        )
+        timings["rebuild"] = time.perf_counter() - t0
+    constraints, seq, correction = solved.constraints, solved.seq, solved.correction
+    scale, start = solved.scale, solved.start
+
+    stage = None
+    if survey is not None:
+        # Against the earlier survey: match, keep the consistent pairs, move into its frame.
+        t0 = time.perf_counter()
+        anchors = (ex.anchor_stamps, ex.anchor_poses)
+        stage = reinspect(survey, ex.landmarks, anchors, scans, correction.poses, cfg)
+        if stage.poses is not None:
+            correction = replace(correction, poses=stage.poses)
+        timings["survey"] = time.perf_counter() - t0
+
     t0 = time.perf_counter()
-    joints = _write(out, ex, matched, (scans, start), correction, constraints, cfg)
+    joints, changes = _write(out, ex, matched, (scans, start), correction, constraints, cfg, stage)
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
@@ -539,7 +734,8 @@ def finish_run(
     report = _report(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
-    report.update(loops_enabled=loops)
+    report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild.report())
+    report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
     report.update(report_head)
@@ -607,6 +803,7 @@ def _report(
             "database": matched.database,
             "queries": summary.queries,
             "accepted": summary.accepted,
+            "accepted_by_position_prior": len(matched.by_prior),
             "loop_factors": loop_factors,
             "sequential_factors": len(constraints) - loop_factors,
         },

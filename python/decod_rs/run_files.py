@@ -4,7 +4,9 @@ constraints.
 
 ``loops.csv``: the contract's 17 columns (``LOOPS_COLUMNS``), one row per query boundary with
 its Top-1 candidate, then any extra columns (kept as strings in ``LoopTable.extra``). A query
-with no candidate may leave the candidate fields empty (read as NaN, never accepted).
+with no candidate may leave the candidate fields empty (read as NaN, never accepted). A run
+with ``--survey`` adds one row per landmark against the survey (column ``session`` =
+``survey``; :func:`within_run` drops them).
 
 ``landmarks.csv``: every detected boundary. Required columns ``stamp, origin_x, origin_y,
 origin_z``; optional ``axis_x, axis_y, axis_z`` (NaN when absent), ``radius_m``,
@@ -59,6 +61,7 @@ __all__ = [
     "read_landmarks_csv",
     "read_loops_csv",
     "staged_run_dir",
+    "within_run",
     "write_landmarks_csv",
     "write_loops_csv",
 ]
@@ -237,6 +240,29 @@ def write_landmarks_csv(path: str | Path, table: LandmarkTable) -> None:
             w.writerow([*cells, str(int(tracks[r])), str(int(joints[r]))])
 
 
+def within_run(table: LoopTable) -> LoopTable:
+    """The rows of the run itself: without the cross-session rows of a run with ``--survey``
+    (column ``session`` = ``survey``: their ``db_stamp`` is the survey's, not this run's)."""
+    session = table.extra.get("session")
+    if session is None:
+        return table
+    rows = np.array([s != "survey" for s in session], dtype=bool)
+    return LoopTable(
+        query_stamp=table.query_stamp[rows],
+        db_stamp=table.db_stamp[rows],
+        query_origin=table.query_origin[rows],
+        query_axis=table.query_axis[rows],
+        db_origin=table.db_origin[rows],
+        db_axis=table.db_axis[rows],
+        inliers=table.inliers[rows],
+        score=table.score[rows],
+        accepted=table.accepted[rows],
+        extra={
+            k: [v for v, ok in zip(col, rows, strict=True) if ok] for k, col in table.extra.items()
+        },
+    )
+
+
 def loops_to_constraints(
     table: LoopTable, node_stamps: ArrayLike, accepted_only: bool = True
 ) -> list[LoopConstraint]:
@@ -253,6 +279,7 @@ def loops_to_constraints(
             raise ValueError(f"loop stamp {stamp!r} is not a node stamp (nearest {nodes[k]!r})")
         return k
 
+    table = within_run(table)
     out = []
     for r in range(len(table)):
         if accepted_only and not table.accepted[r]:

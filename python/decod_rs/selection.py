@@ -31,7 +31,7 @@ what the odometry can do (a frontend that stalls along the axis needs up to 1).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -169,16 +169,20 @@ def select_loops(
     scan_stamps: FloatArray,
     scan_odom: FloatArray,
     matching: Any,
+    also: Sequence[int] = (),
 ) -> tuple[list[bool], list[str]]:
     """For every query result: whether it stays a loop, and why not (the matcher's own
-    rejection, or ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`)."""
+    rejection, or ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`).
+    ``also``: indices of results the matcher rejected that enter the selection as if
+    accepted (:mod:`decod_rs.disambiguation`)."""
     along = path_along(scan_stamps, scan_odom)
 
     def world(stamp: float, point: FloatArray) -> FloatArray:
         pose = anchors[stamp]
         return np.asarray(pose[:3, :3] @ point + pose[:3, 3], dtype=np.float64)
 
-    accepted = [k for k, r in enumerate(results) if r.accepted]
+    extra = set(also)
+    accepted = [k for k, r in enumerate(results) if r.accepted or k in extra]
     evidence = [
         LoopEvidence(
             correction=world(r.candidate_stamp, effective_db_origin(r))

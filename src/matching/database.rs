@@ -31,6 +31,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::patches::PatchShape;
+use super::retrieval::CoarseIndex;
 use super::{
     Heading, PairResult, PreparedLandmark, QuerySide, Rejection, check_grids, compare_prepared,
     null_model,
@@ -116,6 +117,20 @@ pub struct LandmarkDatabase {
     /// Physical boundary of each entry: views sharing an id are one candidate, never each
     /// other's runner-up, and count once among the candidates compared.
     boundaries: Vec<u64>,
+    /// The entries' forward coarse signatures, contiguous ([`super::retrieval`]).
+    coarse: CoarseIndex,
+    /// The distinct boundary ids (the null model's family when every entry is eligible,
+    /// without sorting 10,000 ids per query).
+    distinct: std::collections::HashSet<u64>,
+}
+
+/// Which database entries a query may be compared with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Eligibility {
+    /// Within one run (paper §IV-A): at least `min_time_separation_s` apart, no shared scan.
+    WithinRun,
+    /// Against an earlier survey: every entry (stamps of two sessions are unrelated).
+    CrossSession,
 }
 
 /// Whether the prepared data of `a` is valid for `b` (same normalisation, keypoints, patches).
@@ -130,6 +145,15 @@ fn same_preparation(a: &MatchingConfig, b: &MatchingConfig) -> bool {
         && a.keypoint_nms_rows == b.keypoint_nms_rows
         && a.keypoint_nms_cols == b.keypoint_nms_cols
         && a.min_patch_overlap_fraction == b.min_patch_overlap_fraction
+}
+
+/// [`eligible`] on prepared landmarks, skipping the scan comparison when the submaps' scan
+/// spans do not overlap (the common case; it made the check cost more than the coarse stage).
+fn eligible_prepared(q: &PreparedLandmark, c: &PreparedLandmark, cfg: &MatchingConfig) -> bool {
+    if (q.landmark.submap_stamp - c.landmark.submap_stamp).abs() < cfg.min_time_separation_s {
+        return false;
+    }
+    !q.scans_may_overlap(c) || eligible(&q.landmark, &c.landmark, cfg)
 }
 
 /// Paper §IV-A: at least `min_time_separation_s` apart and no shared scans.
@@ -149,6 +173,8 @@ impl LandmarkDatabase {
             shape: PatchShape::new(config),
             entries: Vec::new(),
             boundaries: Vec::new(),
+            coarse: CoarseIndex::default(),
+            distinct: std::collections::HashSet::new(),
         }
     }
 
@@ -191,8 +217,11 @@ impl LandmarkDatabase {
             check_grids(&first.landmark, &landmark)?;
         }
         let prepared = PreparedLandmark::new(Arc::new(landmark), &self.config, &self.shape)?;
+        self.coarse
+            .push(prepared.coarse.first().map_or(&[][..], |v| &v[..]));
         self.entries.push(prepared);
         self.boundaries.push(boundary);
+        self.distinct.insert(boundary);
         Ok(self.entries.len() - 1)
     }
 
@@ -232,19 +261,24 @@ impl LandmarkDatabase {
             .map(|l| PreparedLandmark::new(Arc::new(l), &self.config, &self.shape))
             .collect::<Result<Vec<_>>>()?;
         let start = self.entries.len();
+        for p in &prepared {
+            self.coarse
+                .push(p.coarse.first().map_or(&[][..], |v| &v[..]));
+        }
         self.entries.extend(prepared);
+        self.distinct.extend(boundaries.iter().copied());
         self.boundaries.extend(boundaries);
         Ok((start..self.entries.len()).collect())
     }
 
     /// Best eligible candidate for `query` (rayon over candidates); see the module docs.
     pub fn query(&self, query: &Landmark, cfg: &MatchingConfig) -> Result<QueryResult> {
-        self.query_with(query, cfg, true, None)
+        self.query_with(query, cfg, true, Eligibility::WithinRun)
     }
 
     /// [`Self::query`] on one thread (reference for the parallel path; results are identical).
     pub fn query_serial(&self, query: &Landmark, cfg: &MatchingConfig) -> Result<QueryResult> {
-        self.query_with(query, cfg, false, None)
+        self.query_with(query, cfg, false, Eligibility::WithinRun)
     }
 
     /// Batch mode (paper §IV-A): every query against the whole (outbound) database, queries
@@ -254,9 +288,21 @@ impl LandmarkDatabase {
         queries: &[Landmark],
         cfg: &MatchingConfig,
     ) -> Result<Vec<QueryResult>> {
+        self.query_batch_with(queries, cfg, Eligibility::WithinRun)
+    }
+
+    /// [`Self::query_batch`] under an eligibility rule: [`Eligibility::CrossSession`] for a
+    /// new run's boundaries against an earlier survey (every entry is a candidate; the same
+    /// acceptance as within a run).
+    pub fn query_batch_with(
+        &self,
+        queries: &[Landmark],
+        cfg: &MatchingConfig,
+        eligibility: Eligibility,
+    ) -> Result<Vec<QueryResult>> {
         queries
             .par_iter()
-            .map(|q| self.query_with(q, cfg, true, None))
+            .map(|q| self.query_with(q, cfg, true, eligibility))
             .collect()
     }
 
@@ -267,18 +313,69 @@ impl LandmarkDatabase {
         landmark: Landmark,
         cfg: &MatchingConfig,
     ) -> Result<(QueryResult, usize)> {
-        let result = self.query_with(&landmark, cfg, true, None)?;
+        let result = self.query_with(&landmark, cfg, true, Eligibility::WithinRun)?;
         let index = self.add(landmark)?;
         Ok((result, index))
     }
 
-    /// The query, optionally restricted to the first `limit` entries.
+    /// Bytes held per landmark: the mean over the entries of the prepared data
+    /// ([`PreparedLandmark::heap_bytes`]) plus the contiguous coarse signature and the
+    /// boundary id.
+    pub fn bytes_per_landmark(&self) -> usize {
+        if self.entries.is_empty() {
+            return 0;
+        }
+        let prepared: usize = self.entries.iter().map(|e| e.heap_bytes()).sum();
+        prepared / self.entries.len()
+            + self.coarse.bytes_per_landmark()
+            + std::mem::size_of::<PreparedLandmark>()
+            + std::mem::size_of::<u64>()
+    }
+
+    /// The indices the exact matcher compares `q` with: every eligible entry, or under
+    /// `retrieval = "coarse"` with more than `retrieval_min_candidates` eligible, the coarse
+    /// short list ([`super::retrieval`]). Also returns the eligible indices.
+    fn candidates(
+        &self,
+        q: &PreparedLandmark,
+        entries: &[PreparedLandmark],
+        cfg: &MatchingConfig,
+        parallel: bool,
+        eligibility: Eligibility,
+    ) -> (Vec<usize>, Vec<usize>) {
+        let ok = |(i, c): (usize, &PreparedLandmark)| {
+            (eligibility == Eligibility::CrossSession || eligible_prepared(q, c, cfg)).then_some(i)
+        };
+        let eligible: Vec<usize> = if parallel {
+            entries.par_iter().enumerate().filter_map(ok).collect()
+        } else {
+            entries.iter().enumerate().filter_map(ok).collect()
+        };
+        let coarse = cfg.retrieval == "coarse"
+            && eligible.len() > cfg.retrieval_min_candidates.max(cfg.retrieval_short_list);
+        if !coarse {
+            return (eligible.clone(), eligible);
+        }
+        let short = if std::ptr::eq(entries, self.entries.as_slice()) {
+            self.coarse
+                .short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
+        } else {
+            let mut index = CoarseIndex::default();
+            entries
+                .iter()
+                .for_each(|e| index.push(e.coarse.first().map_or(&[][..], |v| &v[..])));
+            index.short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
+        };
+        (short, eligible)
+    }
+
+    /// The query under an eligibility rule.
     fn query_with(
         &self,
         query: &Landmark,
         cfg: &MatchingConfig,
         parallel: bool,
-        limit: Option<usize>,
+        eligibility: Eligibility,
     ) -> Result<QueryResult> {
         if let Some(first) = self.entries.first() {
             check_grids(&first.landmark, query)?;
@@ -297,20 +394,44 @@ impl LandmarkDatabase {
                     .collect::<Result<Vec<_>>>()?;
                 (&reprepared, shape)
             };
-        let entries = &entries[..limit.unwrap_or(entries.len()).min(entries.len())];
         let q = PreparedLandmark::new(Arc::new(query.clone()), cfg, &shape)?;
         let side = QuerySide::new(&q, &shape);
-        let work = |(index, c): (usize, &PreparedLandmark)| {
-            eligible(query, &c.landmark, cfg)
-                .then(|| (index, compare_prepared(&q, &side, c, cfg, &shape)))
+        let (compared, eligible) = self.candidates(&q, entries, cfg, parallel, eligibility);
+        let work = |&index: &usize| {
+            (
+                index,
+                compare_prepared(&q, &side, &entries[index], cfg, &shape),
+            )
         };
         let pairs: Vec<(usize, PairResult)> = if parallel {
-            entries.par_iter().enumerate().filter_map(work).collect()
+            compared.par_iter().map(work).collect()
         } else {
-            entries.iter().enumerate().filter_map(work).collect()
+            compared.iter().map(work).collect()
         };
-        Ok(decide(&q, entries, &self.boundaries, &pairs, cfg))
+        let family = if eligible.len() == self.boundaries.len() {
+            self.distinct.len()
+        } else {
+            distinct_boundaries(&self.boundaries, &eligible)
+        };
+        let mut result = decide(&q, entries, &self.boundaries, &pairs, family, cfg);
+        result.eligible = eligible.len();
+        if eligible.is_empty() && !entries.is_empty() {
+            result.rejection = Some(Rejection::Ineligible);
+        }
+        Ok(result)
     }
+}
+
+/// Number of distinct physical boundaries among `indices` (the null model's family: every
+/// eligible boundary, whether or not the coarse stage handed it to the exact matcher).
+fn distinct_boundaries(boundaries: &[u64], indices: &[usize]) -> usize {
+    let mut ids: Vec<u64> = indices
+        .iter()
+        .map(|&i| boundaries.get(i).copied().unwrap_or(u64::MAX - i as u64))
+        .collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids.len()
 }
 
 /// The inlier margin beyond the counting noise of best and runner-up
@@ -370,6 +491,7 @@ fn decide(
     entries: &[PreparedLandmark],
     boundaries: &[u64],
     pairs: &[(usize, PairResult)],
+    family: usize,
     cfg: &MatchingConfig,
 ) -> QueryResult {
     let query = &*q.landmark;
@@ -427,10 +549,7 @@ fn decide(
     result.candidate_axis_in_submap = c.axis_in_submap;
     result.pair = Some(pair.clone());
     if cfg.verification {
-        let mut distinct: Vec<u64> = pairs.iter().map(|p| boundary(p.0)).collect();
-        distinct.sort_unstable();
-        distinct.dedup();
-        let n = distinct.len();
+        let n = family;
         result.chance = chance_of(q, &entries[*index], pair, n, cfg);
         if let Some((k, p)) = second {
             result.runner_up_chance = chance_of(q, &entries[*k], p, n, cfg);

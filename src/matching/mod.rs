@@ -13,6 +13,7 @@
 // Grid code indexes several parallel arrays by (row, col); ranges read best there.
 #![allow(clippy::needless_range_loop)]
 
+pub mod change;
 pub mod correspondences;
 pub mod database;
 pub mod heading;
@@ -20,6 +21,7 @@ pub mod keypoints;
 pub mod normalise;
 pub mod null_model;
 pub mod patches;
+pub mod retrieval;
 pub mod synthetic;
 pub mod verify;
 
@@ -120,6 +122,11 @@ pub struct PreparedLandmark {
     pub keypoints: Vec<Keypoint>,
     /// Candidate GEMM factor of the keypoints' patches.
     pub patches: CandidatePatches,
+    /// Coarse signatures ([`retrieval::query_signatures`]): both headings at a few axial
+    /// shifts; the first (forward, unshifted) is what a database entry is indexed by.
+    pub coarse: Vec<Vec<f32>>,
+    /// Earliest and latest scan stamp of the submap (eligibility's fast path).
+    scan_span: (f64, f64),
 }
 
 fn bitset(bits: impl Iterator<Item = bool>) -> Vec<u64> {
@@ -164,7 +171,16 @@ impl PreparedLandmark {
             .iter()
             .map(|kp| shape.extract(&field, &observed, grid, kp))
             .collect();
+        let coarse = retrieval::query_signatures(&field, &observed, d.rows, d.cols);
+        let scan_span = landmark
+            .scan_stamps
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &s| {
+                (lo.min(s), hi.max(s))
+            });
         Ok(Self {
+            coarse,
+            scan_span,
             observed_bits: bitset(observed.iter().copied()),
             flipped_bits: bitset(observed.iter().rev().copied()),
             keypoints,
@@ -176,6 +192,28 @@ impl PreparedLandmark {
     /// Grid size `(rows, cols)`.
     pub fn grid(&self) -> (usize, usize) {
         (self.landmark.descriptor.rows, self.landmark.descriptor.cols)
+    }
+
+    /// Whether the two submaps' scan-stamp ranges overlap (if not, they share no scan).
+    pub(crate) fn scans_may_overlap(&self, other: &PreparedLandmark) -> bool {
+        self.scan_span.0 <= other.scan_span.1 && other.scan_span.0 <= self.scan_span.1
+    }
+
+    /// Approximate heap bytes held by this prepared landmark: the landmark (descriptor,
+    /// mask, normals, contour, scan stamps), the patch factor, masks and signatures.
+    pub fn heap_bytes(&self) -> usize {
+        let l = &*self.landmark;
+        let d = &l.descriptor;
+        let f64s = d.offsets_m.len() + d.normal_e1.len() + d.normal_e2.len();
+        let landmark = 8 * (f64s + l.scan_stamps.len() + 2 * l.contour_e1e2_m.len())
+            + d.observed.len()
+            + std::mem::size_of::<Landmark>();
+        let m = &self.patches.matrix;
+        let patches = 4 * m.nrows() * m.ncols();
+        let bits = 8 * (self.observed_bits.len() + self.flipped_bits.len());
+        let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
+        let coarse = 4 * self.coarse.iter().map(Vec::len).sum::<usize>();
+        landmark + patches + bits + keypoints + coarse
     }
 }
 

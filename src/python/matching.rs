@@ -6,15 +6,18 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use numpy::PyArray1;
+use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 
+use super::arrays::flat_to_numpy;
 use super::detached;
 use super::errors::to_py_err;
 use super::landmark::PyLandmark;
 use crate::config::MatchingConfig;
 use crate::error::DecodError;
 use crate::landmark::Landmark;
+use crate::matching::Heading;
+use crate::matching::database::Eligibility;
 use crate::matching::synthetic::{Grid, JointSurface, Observation, Rng, SurfaceParams};
 use crate::matching::{self, LandmarkDatabase, PairResult, QueryResult};
 
@@ -350,12 +353,15 @@ impl PyLandmarkDatabase {
         let inner = detached(py, move || db.query(&q, &cfg))?;
         Ok(PyQueryResult { inner })
     }
-    /// Every query against the database (batch mode), queries in parallel.
+    /// Every query against the database (batch mode), queries in parallel;
+    /// `cross_session`: against an earlier survey (every entry eligible).
+    #[pyo3(signature = (queries, config_json, cross_session = false))]
     fn query_batch(
         &self,
         py: Python<'_>,
         queries: Vec<PyRef<'_, PyLandmark>>,
         config_json: &str,
+        cross_session: bool,
     ) -> PyResult<Vec<PyQueryResult>> {
         let cfg = config_from_json(config_json)?;
         let qs: Vec<Landmark> = landmarks_of(&queries)
@@ -363,7 +369,12 @@ impl PyLandmarkDatabase {
             .map(|l| (**l).clone())
             .collect();
         let db = &self.inner;
-        let results = detached(py, move || db.query_batch(&qs, &cfg))?;
+        let eligibility = if cross_session {
+            Eligibility::CrossSession
+        } else {
+            Eligibility::WithinRun
+        };
+        let results = detached(py, move || db.query_batch_with(&qs, &cfg, eligibility))?;
         Ok(results
             .into_iter()
             .map(|inner| PyQueryResult { inner })
@@ -412,9 +423,48 @@ impl PyLandmarkDatabase {
         serde_json::to_string(self.inner.config())
             .map_err(|e| to_py_err(DecodError::config("matching", e.to_string())))
     }
+    /// Bytes held per landmark (prepared data, coarse signature, boundary id).
+    fn bytes_per_landmark(&self) -> usize {
+        self.inner.bytes_per_landmark()
+    }
     fn __len__(&self) -> usize {
         self.inner.len()
     }
+}
+
+/// The change between two sessions' views of one boundary (`decod::matching::change`):
+/// `(normalised_difference, cells, difference)`, the candidate brought to the query by
+/// `heading_deg` (0 or 180) and the pair's offsets; `difference` is `(rows, cols)`, NaN where
+/// the two are not both observed.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn descriptor_change<'py>(
+    py: Python<'py>,
+    query: PyRef<'_, PyLandmark>,
+    candidate: PyRef<'_, PyLandmark>,
+    heading_deg: f64,
+    dz_m: f64,
+    dp: f64,
+    config_json: &str,
+) -> PyResult<(f64, usize, Bound<'py, PyArray2<f64>>)> {
+    let cfg = config_from_json(config_json)?;
+    let heading = if (heading_deg - 180.0).abs() < 1e-6 {
+        Heading::Reversed
+    } else if heading_deg.abs() < 1e-6 {
+        Heading::Forward
+    } else {
+        return Err(to_py_err(DecodError::invalid(
+            "heading_deg",
+            format!("expected 0 or 180, got {heading_deg}"),
+        )));
+    };
+    let (q, c) = (query.inner.clone(), candidate.inner.clone());
+    let (rows, cols) = (q.descriptor.rows, q.descriptor.cols);
+    let change = detached(py, move || {
+        matching::change::aligned_change(&q, &c, heading, dz_m, dp, &cfg)
+    })?;
+    let grid = flat_to_numpy(py, change.difference, rows, cols)?;
+    Ok((change.normalised_difference, change.cells, grid))
 }
 
 /// A synthetic observation of joint `joint_seed` of pipe `pipe_seed` (see
@@ -477,6 +527,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyLandmarkDatabase>()?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
     m.add_function(wrap_pyfunction!(compare_pairs, m)?)?;
+    m.add_function(wrap_pyfunction!(descriptor_change, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic_landmark, m)?)?;
     Ok(())
 }

@@ -12,6 +12,7 @@ mod io;
 mod landmark;
 mod matching;
 mod pipeline;
+mod survey;
 
 /// Runs `work` with the GIL released and maps a core error to its Python exception.
 /// A Rust panic would already be a bug; catching it here keeps it from killing the
@@ -45,5 +46,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     io::register(m)?;
     matching::register(m)?;
     pipeline::register(m)?;
+    survey::register(m)?;
     Ok(())
 }

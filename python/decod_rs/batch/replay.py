@@ -123,7 +123,12 @@ def run_from_extraction(
         **(report_extra or {}),
     }
     extracted = Extracted(
-        extraction.log, extraction.processor, extraction.extracted, extraction.scans, gap_factors
+        extraction.log,
+        extraction.processor,
+        extraction.extracted,
+        extraction.scans,
+        gap_factors,
+        extraction.imu_topic,
     )
     # Written into OUT.partial, published at the end (as decod run): never half-written.
     with staged_run_dir(out_dir) as staging:

@@ -15,7 +15,7 @@ import numpy as np
 from decod_rs.config import PRESETS
 from decod_rs.evaluate import evaluate_run, format_table
 from decod_rs.plots import plot_error_over_time, plot_pr_curve, plot_trajectories
-from decod_rs.run_files import read_loops_csv
+from decod_rs.run_files import read_loops_csv, within_run
 from decod_rs.tum import read_tum
 
 
@@ -107,7 +107,7 @@ def evaluate_and_report(
         stamps, odom = read_tum(run_dir / "odometry.tum")
         c_stamps, corrected = read_tum(run_dir / "corrected.tum")
         if c_stamps.shape == stamps.shape and np.array_equal(c_stamps, stamps):
-            loops = read_loops_csv(run_dir / "loops.csv")
+            loops = within_run(read_loops_csv(run_dir / "loops.csv"))
             pairs = [
                 (float(q), float(d))
                 for q, d, ok in zip(loops.query_stamp, loops.db_stamp, loops.accepted, strict=True)

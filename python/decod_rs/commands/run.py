@@ -18,9 +18,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="detect, match and close loops on a log; write corrected.tum and a report",
         description="Run DeCOD on a log (.mcap, ROS 1 .bag, .db3 or a rosbag2 directory with "
         "MCAP or sqlite3 storage) and write odometry.tum, corrected.tum, loops.csv, "
-        "landmarks.csv, report.json and plots into --out. A cut-off or corrupt log is read as "
-        "far as it goes (report.json 'ingest' says what was lost); the files appear in --out "
-        "only when the run is complete (it writes into OUT.partial first).",
+        "landmarks.csv, joints.csv, report.json, survey.decod and plots into --out. A cut-off "
+        "or corrupt log is read as far as it goes (report.json 'ingest' says what was lost); "
+        "the files appear in --out only when the run is complete (it writes into OUT.partial "
+        "first).",
     )
     p.add_argument("log", type=Path, help=".mcap, .bag or .db3 file, or rosbag2 directory")
     p.add_argument(
@@ -71,6 +72,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "boundaries, every query's Top-1 and verdict, descriptors of accepted pairs "
         "(needs rerun-sdk: pip install 'decod-rs[rerun]')",
     )
+    p.add_argument(
+        "--survey",
+        type=Path,
+        metavar="RUN_DIR",
+        help="re-inspect the corridor of an earlier `decod run` (its output directory, which "
+        "holds survey.decod): boundaries are matched against it, the trajectory comes out in "
+        "its frame, joints.csv gives its chainage and joint ids, changes.csv / changes.png "
+        "rank the joints that changed most (without --preset/--config: its config)",
+    )
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=run)
 
@@ -113,8 +123,11 @@ def run(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
         map=args.map,
         rerun=args.rerun,
+        survey=args.survey,
     )
     print_summary(summary)
+    if args.survey is not None:
+        print_survey(args.out)
     if args.map:
         print_map(args.out)
     return 0
@@ -132,3 +145,20 @@ def print_map(out: Path) -> None:
         wall = f"wall where the passes overlap {before:.1f} mm (odometry) -> {after:.1f} mm"
     points = sum(section["points"]["corrected"].values())
     print(f"map            {points} points ({section['voxel_m'] * 1e3:.1f} mm voxels); {wall}")
+
+
+def print_survey(out: Path) -> None:
+    """The survey stage's outcome (``report.json`` ``survey``)."""
+    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["survey"]
+    frame = "survey frame" if section["placed_in_survey_frame"] else "own frame (no pair kept)"
+    print(
+        f"survey         {section['kept']} of {section['accepted']} accepted cross-session "
+        f"pairs kept; trajectory in the {frame}"
+    )
+    changes = section.get("changes") or {}
+    top = ", ".join(
+        f"joint {c['survey_joint_id']} ({c['change']:.2f})"
+        for c in changes.get("most_changed", [])[:3]
+    )
+    if top:
+        print(f"changed most   {top}")

@@ -21,6 +21,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scene", choices=sorted(SCENES))
     p.add_argument("--out", required=True, type=Path, help="output directory")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--world-seed",
+        type=int,
+        help="build the corridor from this seed instead of --seed: a re-inspection of the same "
+        "world with its own noise and drift (with --scene-param displaced_segment=K, "
+        "wider_gap_joint=K, deposit_joint=K for changed joints)",
+    )
     p.add_argument("--length", type=float, default=None, help="one-way length in metres")
     p.add_argument("--sensor", choices=sorted(SENSORS), default=None)
     p.add_argument("--h-res", type=float, default=None, help="spinning sensors: column step, deg")
@@ -90,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         speed_mps=args.speed,
         sensor_overrides=overrides or None,
         scene_overrides=dict(args.scene_params) or None,
+        world_seed=args.world_seed,
         odometry=args.odometry,
         livox=args.livox,
         ros1=args.ros1,

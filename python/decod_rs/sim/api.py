@@ -70,8 +70,12 @@ class Simulation:
         sensor_overrides: dict[str, Any] | None = None,
         imu: ImuSpec | None = None,
         scene_overrides: dict[str, Any] | None = None,
+        world_seed: int | None = None,
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
+        # The world (scene geometry) may come from another seed than the run (noise, drift,
+        # trajectory wobble): two inspections of one pipe (issue 12).
+        self.world_seed = int(seed if world_seed is None else world_seed)
         defaults = defaults_for(scene, scene_params(scene, self.scene_overrides))
         self.seed = int(seed)
         self.distinctiveness = 1.0 if distinctiveness is None else float(distinctiveness)
@@ -97,7 +101,7 @@ class Simulation:
         x_max = defaults.x_start_m + length + defaults.beyond_m
         self.scene: Scene = build_scene(
             scene,
-            self.seed,
+            self.world_seed,
             x_max,
             self.distinctiveness,
             self.identical_joints,
@@ -177,6 +181,7 @@ class Simulation:
             "version": JOINTS_FORMAT_VERSION,
             "scene": sc.name,
             "seed": self.seed,
+            "world_seed": self.world_seed,
             "distinctiveness": self.distinctiveness,
             "identical_joints": self.identical_joints,
             "axis": {
@@ -266,6 +271,7 @@ def generate(
     sensor_overrides: dict[str, Any] | None = None,
     scan_indices: list[int] | None = None,
     scene_overrides: dict[str, Any] | None = None,
+    world_seed: int | None = None,
 ) -> SimData:
     """Simulate a run in memory (every scan, or only ``scan_indices``; the poses, IMU and
     drift always cover the whole run and ``stamps_ns`` the selected scans). Arguments as
@@ -282,6 +288,7 @@ def generate(
         speed_mps=speed_mps,
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
+        world_seed=world_seed,
     )
     idx = list(range(sim.n_scans)) if scan_indices is None else list(scan_indices)
     scans = [sim.scan(k) for k in idx]
@@ -374,6 +381,7 @@ def simulate(
     speed_mps: float | None = None,
     sensor_overrides: dict[str, Any] | None = None,
     scene_overrides: dict[str, Any] | None = None,
+    world_seed: int | None = None,
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -392,7 +400,8 @@ def simulate(
     an unknown key is a ``ValueError`` listing the valid ones; the sensor mount follows the
     radius, :func:`decod_rs.sim.scenes.defaults_for`). ``odometry="kiss-icp"`` replaces the
     drift model by a real LiDAR odometry (KISS-ICP) run on the simulated scans (``drift`` is
-    then ignored).
+    then ignored). ``world_seed`` builds the scene from another seed than ``seed`` (default:
+    the same): two inspections of one world with their own noise and drift.
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
@@ -426,6 +435,7 @@ def simulate(
         speed_mps=speed_mps,
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
+        world_seed=world_seed,
     )
     kiss = KissOdometry(scene, sim.gt_poses[0]) if odometry == "kiss-icp" else None
     odom_poses = sim.drift.odom_poses.copy()

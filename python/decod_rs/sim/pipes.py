@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from decod_rs.sim.changes import CHANGE_PARAMS, apply_changes
 from decod_rs.sim.fields import (
     F64,
     Grid2D,
@@ -57,6 +58,7 @@ HUME_PARAMS: dict[str, Any] = {
     "lateral_connection_depth_m": 0.25,
     "range_noise_m": 0.0015,
     "x_min_m": -0.3,
+    **CHANGE_PARAMS,
 }
 
 PE_PARAMS: dict[str, Any] = {
@@ -78,6 +80,7 @@ PE_PARAMS: dict[str, Any] = {
     "roughness_corr_m": 0.01,
     "range_noise_m": 0.0015,
     "x_min_m": -0.3,
+    **CHANGE_PARAMS,
 }
 #: Per scene, the parameter that sets the spacing of the boundaries (joints, rings, arches).
 SPACING_KEYS = {
@@ -348,6 +351,7 @@ def build_hume(
     connections = PatchSet(np.asarray(conn_x), c_half, _stack(conn_tables, cu.size, th.size))
 
     p["identical_joints"] = identical
+    grooves, lips = apply_changes(p, grooves, lips, th)
     return Scene(
         name="hume",
         radius_m=radius,
@@ -408,6 +412,7 @@ def build_pe(
     if identical:
         rough = Grid2D(joints[0], rough.du, rough.v0, rough.dv, rough.values, True, True)
     p["identical_joints"] = identical
+    couplers, lips = apply_changes(p, couplers, lips, th)
     return Scene(
         name="pe",
         radius_m=radius,

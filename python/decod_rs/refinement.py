@@ -1,0 +1,112 @@
+"""Submaps built again on the corrected trajectory (beyond the paper).
+
+A submap stitches ``scans_per_submap`` scans with the odometry's relative poses. Where the
+odometry's scale is off, so is the stitching: a pass whose odometry is 15 % short places a
+boundary seen from the first and the last scan of a submap 15 % of the submap's travel
+apart, and the descriptor sees a smeared ring (0.4 m at 1.3 m/s with 2 s submaps, more than
+one 0.3 m descriptor row in the simulated shield tunnel). Descriptors of the two passes then
+disagree exactly where the odometry is worst, which is where loops are needed.
+
+After the first optimisation, loops and boundary tracks have measured each pass's scale, and
+the corrected trajectory stitches better than the odometry. When the two disagree about the
+distance travelled within one submap by more than half a descriptor row
+(:func:`rebuild_threshold_m`; the 90th percentile over all submap-length windows,
+:func:`travel_disagreement_m`), decod builds the submaps again on the corrected trajectory
+and matches them again. Only the submaps' *content* changes: the pose graph keeps the
+odometry's factors, and the new anchors are placed on the odometry like the first ones, so no
+measurement is counted twice. ``submap.rebuild_on_correction = false`` turns it off.
+
+The corrected trajectory is not better everywhere: far from any loop it can stitch worse than
+the odometry (on a simulated hume re-inspection one boundary seen once, at the end of the
+return, moved by 6 cm). The number of loops that survive the whole selection measures how
+well the two passes' submaps agree, so the rebuilt submaps replace the first ones only if
+they close more loops (:func:`keep_rebuilt`); else the first round stands.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "RebuildDecision",
+    "keep_rebuilt",
+    "rebuild_decision",
+    "rebuild_threshold_m",
+    "travel_disagreement_m",
+]
+
+#: Percentile of the per-window disagreement that decides (a few windows at a turn, where
+#: the trajectories differ in shape rather than scale, must not decide alone).
+PERCENTILE = 90.0
+
+
+def _path(poses: FloatArray) -> FloatArray:
+    steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def travel_disagreement_m(odometry: FloatArray, corrected: FloatArray, scans: int) -> float:
+    """How much the two trajectories (N x 4 x 4 at the same scan stamps) disagree about the
+    distance travelled over ``scans`` consecutive scans: the 90th percentile over all such
+    windows of ``|corrected travel - odometry travel|``, metres (0 for fewer scans)."""
+    odometry, corrected = np.asarray(odometry), np.asarray(corrected)
+    if odometry.shape != corrected.shape:
+        raise ValueError(f"trajectories differ in shape: {odometry.shape} vs {corrected.shape}")
+    n = int(scans)
+    if n < 1:
+        raise ValueError(f"scans_per_submap: {scans} must be >= 1")
+    if odometry.shape[0] <= n:
+        return 0.0
+    a, b = _path(odometry), _path(corrected)
+    diff = np.abs((b[n:] - b[:-n]) - (a[n:] - a[:-n]))
+    return float(np.percentile(diff, PERCENTILE))
+
+
+def rebuild_threshold_m(cfg: Any) -> float:
+    """Half a descriptor row along the axis (``descriptor.half_length_m`` spans ``rows / 2``
+    rows on either side of the boundary), metres."""
+    rows = max(int(cfg.descriptor.rows), 1)
+    return float(cfg.descriptor.half_length_m) / rows
+
+
+@dataclass(frozen=True)
+class RebuildDecision:
+    """Whether to rebuild, and the figures behind it (``report.json`` ``rebuild``)."""
+
+    needed: bool
+    disagreement_m: float
+    threshold_m: float
+    loops: tuple[int, int] | None = None
+
+    @property
+    def kept(self) -> bool:
+        """Whether the rebuilt submaps replace the first ones (:func:`keep_rebuilt`)."""
+        return self.loops is not None and keep_rebuilt(*self.loops)
+
+    def report(self) -> dict[str, Any]:
+        return {
+            "rebuilt": self.needed,
+            "kept": self.kept,
+            "loops_first_and_rebuilt": None if self.loops is None else list(self.loops),
+            "travel_disagreement_m": self.disagreement_m,
+            "threshold_m": self.threshold_m,
+        }
+
+
+def keep_rebuilt(first_loops: int, rebuilt_loops: int) -> bool:
+    """The rebuilt submaps are kept only if they close more loops than the first ones."""
+    return rebuilt_loops > first_loops
+
+
+def rebuild_decision(odometry: FloatArray, corrected: FloatArray, cfg: Any) -> RebuildDecision:
+    """Rebuild when the corrected trajectory stitches a submap differently enough to move a
+    boundary by more than half a descriptor row (module docs)."""
+    disagreement = travel_disagreement_m(odometry, corrected, int(cfg.submap.scans_per_submap))
+    threshold = rebuild_threshold_m(cfg)
+    return RebuildDecision(disagreement > threshold, disagreement, threshold)

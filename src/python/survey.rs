@@ -1,0 +1,47 @@
+//! Bindings for the survey file (`decod::survey`): write and read, header as JSON text.
+
+use std::path::PathBuf;
+
+use pyo3::prelude::*;
+
+use super::detached;
+use super::errors::to_py_err;
+use super::landmark::PyLandmark;
+use crate::error::DecodError;
+use crate::landmark::Landmark;
+use crate::survey::{FORMAT_VERSION, Survey};
+
+/// Writes a survey: `header_json` (a JSON object with `joint_ids`, one per landmark) and the
+/// landmarks, in the versioned binary format of `decod::survey`.
+#[pyfunction]
+fn write_survey(
+    py: Python<'_>,
+    path: PathBuf,
+    header_json: &str,
+    landmarks: Vec<PyRef<'_, PyLandmark>>,
+) -> PyResult<()> {
+    let header = serde_json::from_str(header_json)
+        .map_err(|e| to_py_err(DecodError::invalid("header_json", e.to_string())))?;
+    let landmarks: Vec<Landmark> = landmarks.iter().map(|l| (*l.inner).clone()).collect();
+    detached(py, move || Survey { header, landmarks }.write(&path))
+}
+
+/// Reads a survey: `(header_json, landmarks)`; `DatabaseError` for another format version,
+/// a foreign, truncated or inconsistent file.
+#[pyfunction]
+fn read_survey(py: Python<'_>, path: PathBuf) -> PyResult<(String, Vec<PyLandmark>)> {
+    let survey = detached(py, move || Survey::read(&path))?;
+    let header = serde_json::to_string(&survey.header)
+        .map_err(|e| to_py_err(DecodError::invalid("survey header", e.to_string())))?;
+    Ok((
+        header,
+        survey.landmarks.into_iter().map(PyLandmark::new).collect(),
+    ))
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("SURVEY_FORMAT_VERSION", FORMAT_VERSION)?;
+    m.add_function(wrap_pyfunction!(write_survey, m)?)?;
+    m.add_function(wrap_pyfunction!(read_survey, m)?)?;
+    Ok(())
+}

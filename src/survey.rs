@@ -1,0 +1,374 @@
+//! A survey: what a later run needs to re-inspect the same corridor in this run's frame
+//! (issue 12): the landmarks with their physical boundary (joint) ids, the corrected poses of
+//! the submap anchors they are expressed in, the run's config and the decod version.
+//!
+//! **Format** (`survey.decod`, little-endian, no pickle, no code):
+//!
+//! ```text
+//! magic      8 bytes  "DECODSVY"
+//! version    u32      FORMAT_VERSION; any other is refused with both versions named
+//! header     u64 n, then n bytes of UTF-8 JSON: {decod_version, config, anchors: [{stamp,
+//!            pose (16, row-major world_from_anchor)}], joint_ids, landmarks (count), extra}
+//! landmarks  `count` records: 17 f64 (stamp, origin, axis, e1, e2, radius, strength,
+//!            cell_z_m, perimeter_m), 4 u32 (rows, cols, scans, contour points), the scan
+//!            stamps (f64), the contour (2 f64 each), normal_e1 and normal_e2 (f64 x cols),
+//!            the offsets (f32 x rows*cols: 0.1 µm steps at 1 m, far below the sensors'
+//!            millimetres) and the observed mask (bits, rows*cols rounded up to bytes)
+//! ```
+//!
+//! Every count is checked against [`MAX_CELLS`], [`MAX_SCANS`] and the bytes left in the file
+//! before anything is allocated, so a corrupt or hostile file is an error naming the record,
+//! never an allocation of its claimed size. Landmarks are validated ([`Landmark::validate`]).
+
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+use crate::error::{DecodError, Result};
+use crate::landmark::{Descriptor, Landmark};
+
+/// File magic.
+pub const MAGIC: &[u8; 8] = b"DECODSVY";
+/// Current format version; reading any other is an error.
+pub const FORMAT_VERSION: u32 = 1;
+/// Largest descriptor grid accepted (cells).
+pub const MAX_CELLS: usize = 1 << 20;
+/// Largest number of scans per submap accepted.
+pub const MAX_SCANS: usize = 1 << 16;
+/// Largest header accepted, bytes.
+pub const MAX_HEADER_BYTES: u64 = 1 << 30;
+
+/// A survey in memory: the JSON header (see the module docs) and the landmarks.
+#[derive(Clone, Debug)]
+pub struct Survey {
+    /// Header object: `decod_version`, `config`, `anchors`, `joint_ids`, anything else.
+    pub header: Value,
+    /// The landmarks, in the order of `header.joint_ids`.
+    pub landmarks: Vec<Landmark>,
+}
+
+fn err(path: &Path, reason: impl Into<String>) -> DecodError {
+    DecodError::Database {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
+}
+
+fn put_f64s(out: &mut Vec<u8>, values: &[f64]) {
+    for v in values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+}
+
+fn put_u32(out: &mut Vec<u8>, value: usize, path: &Path) -> Result<()> {
+    let v = u32::try_from(value).map_err(|_| err(path, format!("count {value} too large")))?;
+    out.extend_from_slice(&v.to_le_bytes());
+    Ok(())
+}
+
+fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path) -> Result<()> {
+    let d = &l.descriptor;
+    let mut fixed = vec![l.submap_stamp];
+    for v in [
+        &l.origin_in_submap,
+        &l.axis_in_submap,
+        &l.e1_in_submap,
+        &l.e2_in_submap,
+    ] {
+        fixed.extend_from_slice(v);
+    }
+    fixed.extend_from_slice(&[l.radius_m, l.strength, d.cell_z_m, d.perimeter_m]);
+    put_f64s(out, &fixed);
+    for n in [d.rows, d.cols, l.scan_stamps.len(), l.contour_e1e2_m.len()] {
+        put_u32(out, n, path)?;
+    }
+    put_f64s(out, &l.scan_stamps);
+    for p in &l.contour_e1e2_m {
+        put_f64s(out, p);
+    }
+    put_f64s(out, &d.normal_e1);
+    put_f64s(out, &d.normal_e2);
+    for v in &d.offsets_m {
+        out.extend_from_slice(&(*v as f32).to_le_bytes());
+    }
+    let mut bits = vec![0u8; d.observed.len().div_ceil(8)];
+    for (i, _) in d.observed.iter().enumerate().filter(|(_, o)| **o) {
+        bits[i / 8] |= 1 << (i % 8);
+    }
+    out.extend_from_slice(&bits);
+    Ok(())
+}
+
+impl Survey {
+    /// Writes the survey (module docs). `header` must be a JSON object; `joint_ids` in it
+    /// must hold one id per landmark.
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let ids = self.header.get("joint_ids").and_then(Value::as_array);
+        if ids.map(Vec::len) != Some(self.landmarks.len()) {
+            return Err(err(path, "header.joint_ids must hold one id per landmark"));
+        }
+        let mut header = self.header.clone();
+        if let Some(obj) = header.as_object_mut() {
+            obj.insert("landmarks".into(), Value::from(self.landmarks.len()));
+        } else {
+            return Err(err(path, "header must be a JSON object"));
+        }
+        let text = serde_json::to_vec(&header).map_err(|e| err(path, e.to_string()))?;
+        let mut out = Vec::with_capacity(text.len() + 64);
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        out.extend_from_slice(&(text.len() as u64).to_le_bytes());
+        out.extend_from_slice(&text);
+        for l in &self.landmarks {
+            l.validate()?;
+            encode_landmark(&mut out, l, path)?;
+        }
+        std::fs::write(path, out).map_err(|source| DecodError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+
+    /// Reads a survey written by [`Self::write`]; another format version, a foreign file or
+    /// a truncated or inconsistent one is a [`DecodError::Database`] saying which.
+    pub fn read(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|source| DecodError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut r = Reader {
+            bytes: &bytes,
+            at: 0,
+            path: path.to_path_buf(),
+        };
+        if r.take(8).ok() != Some(&MAGIC[..]) {
+            return Err(err(path, "not a decod survey (no DECODSVY magic)"));
+        }
+        let version = r.u32()?;
+        if version != FORMAT_VERSION {
+            return Err(err(
+                path,
+                format!(
+                    "survey format version {version} is not supported: this decod ({}) reads \
+                     version {FORMAT_VERSION}; re-run the survey with this version",
+                    env!("CARGO_PKG_VERSION")
+                ),
+            ));
+        }
+        let n = r.u64()?;
+        if n > MAX_HEADER_BYTES {
+            return Err(err(path, format!("header of {n} bytes is implausible")));
+        }
+        let header: Value = serde_json::from_slice(r.take(n as usize)?)
+            .map_err(|e| err(path, format!("corrupt header: {e}")))?;
+        let count = header
+            .get("landmarks")
+            .and_then(Value::as_u64)
+            .ok_or_else(|| err(path, "header has no landmark count"))?;
+        let ids = header.get("joint_ids").and_then(Value::as_array);
+        if ids.map(|a| a.len() as u64) != Some(count) {
+            return Err(err(
+                path,
+                "header.joint_ids does not hold one id per landmark",
+            ));
+        }
+        // Each record holds at least 17 f64 and 4 u32: bound the count by the bytes left.
+        if count > (r.left() / (17 * 8 + 16)) as u64 {
+            return Err(err(
+                path,
+                format!("{count} landmarks cannot fit in the file"),
+            ));
+        }
+        let mut landmarks = Vec::with_capacity(count as usize);
+        for k in 0..count as usize {
+            let l = r
+                .landmark()
+                .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
+            l.validate()
+                .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
+            landmarks.push(l);
+        }
+        if r.left() != 0 {
+            return Err(err(
+                path,
+                format!("{} unexpected bytes at the end", r.left()),
+            ));
+        }
+        Ok(Self { header, landmarks })
+    }
+}
+
+/// A bounds-checked little-endian cursor.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+    path: PathBuf,
+}
+
+impl<'a> Reader<'a> {
+    fn left(&self) -> usize {
+        self.bytes.len() - self.at
+    }
+
+    fn take(&mut self, n: usize) -> Result<&'a [u8]> {
+        if n > self.left() {
+            return Err(err(
+                &self.path,
+                format!("truncated: {n} bytes needed at offset {}", self.at),
+            ));
+        }
+        let out = &self.bytes[self.at..self.at + n];
+        self.at += n;
+        Ok(out)
+    }
+
+    fn array<const N: usize>(&mut self) -> Result<[u8; N]> {
+        let mut a = [0u8; N];
+        a.copy_from_slice(self.take(N)?);
+        Ok(a)
+    }
+
+    fn u32(&mut self) -> Result<u32> {
+        Ok(u32::from_le_bytes(self.array()?))
+    }
+
+    fn u64(&mut self) -> Result<u64> {
+        Ok(u64::from_le_bytes(self.array()?))
+    }
+
+    /// `n` f64 after checking that they are in the file.
+    fn f64s(&mut self, n: usize) -> Result<Vec<f64>> {
+        let raw = self.take(n.saturating_mul(8))?;
+        Ok(raw
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+            .collect())
+    }
+
+    fn landmark(&mut self) -> Result<Landmark> {
+        let f = self.f64s(17)?;
+        let v3 = |i: usize| [f[i], f[i + 1], f[i + 2]];
+        let (rows, cols) = (self.u32()? as usize, self.u32()? as usize);
+        let (scans, contour) = (self.u32()? as usize, self.u32()? as usize);
+        let cells = rows.saturating_mul(cols);
+        if cells == 0 || cells > MAX_CELLS || scans > MAX_SCANS || contour > MAX_CELLS {
+            return Err(DecodError::invalid(
+                "survey record",
+                format!(
+                    "implausible sizes: grid {rows} x {cols}, {scans} scans, {contour} contour"
+                ),
+            ));
+        }
+        let scan_stamps = self.f64s(scans)?;
+        let points = self.f64s(2 * contour)?;
+        let normal_e1 = self.f64s(cols)?;
+        let normal_e2 = self.f64s(cols)?;
+        let offsets_m = self
+            .take(4 * cells)?
+            .chunks_exact(4)
+            .map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
+            .collect();
+        let bits = self.take(cells.div_ceil(8))?;
+        let observed = (0..cells)
+            .map(|i| bits[i / 8] & (1 << (i % 8)) != 0)
+            .collect();
+        Ok(Landmark {
+            submap_stamp: f[0],
+            scan_stamps,
+            origin_in_submap: v3(1),
+            axis_in_submap: v3(4),
+            e1_in_submap: v3(7),
+            e2_in_submap: v3(10),
+            contour_e1e2_m: points.chunks_exact(2).map(|p| [p[0], p[1]]).collect(),
+            radius_m: f[13],
+            strength: f[14],
+            descriptor: Descriptor {
+                rows,
+                cols,
+                cell_z_m: f[15],
+                perimeter_m: f[16],
+                offsets_m,
+                observed,
+                normal_e1,
+                normal_e2,
+            },
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::matching::synthetic::{Grid, JointSurface, Observation, Rng, SurfaceParams};
+
+    fn landmarks(n: usize) -> Vec<Landmark> {
+        let g = Grid::pipe();
+        let mut rng = Rng::new(5);
+        (0..n as u64)
+            .map(|k| {
+                JointSurface::new(g, SurfaceParams::for_grid(&g), 1, k)
+                    .observe(&Observation::random(&g, k as f64, false, &mut rng), k)
+            })
+            .collect()
+    }
+
+    fn survey(n: usize) -> Survey {
+        Survey {
+            header: serde_json::json!({"decod_version": "test", "joint_ids": (0..n).collect::<Vec<_>>()}),
+            landmarks: landmarks(n),
+        }
+    }
+
+    #[test]
+    fn round_trip_keeps_every_field() {
+        let dir = std::env::temp_dir().join(format!("decod-survey-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).ok();
+        let path = dir.join("rt.decod");
+        let s = survey(3);
+        assert!(s.write(&path).is_ok());
+        let back = Survey::read(&path).expect("reads back");
+        assert_eq!(back.landmarks.len(), 3);
+        for (a, b) in s.landmarks.iter().zip(&back.landmarks) {
+            assert_eq!(a.scan_stamps, b.scan_stamps);
+            assert_eq!(a.origin_in_submap, b.origin_in_submap);
+            assert_eq!(a.descriptor.observed, b.descriptor.observed);
+            for (x, y) in a.descriptor.offsets_m.iter().zip(&b.descriptor.offsets_m) {
+                assert!((x - y).abs() <= 1e-7 * x.abs().max(1e-3));
+            }
+        }
+        assert_eq!(back.header["landmarks"], 3);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn other_versions_truncation_and_huge_counts_are_refused() {
+        let dir = std::env::temp_dir().join(format!("decod-survey-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).ok();
+        let path = dir.join("s.decod");
+        assert!(survey(2).write(&path).is_ok());
+        let good = std::fs::read(&path).unwrap_or_default();
+        let check = |bytes: &[u8], needle: &str| {
+            let p = dir.join("bad.decod");
+            assert!(std::fs::write(&p, bytes).is_ok());
+            match Survey::read(&p) {
+                Err(DecodError::Database { reason, .. }) => {
+                    assert!(reason.contains(needle), "{reason} lacks {needle}")
+                }
+                other => panic!("expected a database error, got {other:?}"),
+            }
+        };
+        let mut v2 = good.clone();
+        v2[8..12].copy_from_slice(&2u32.to_le_bytes());
+        check(&v2, "version 2 is not supported");
+        check(&good[..good.len() - 10], "truncated");
+        check(b"PK\x03\x04 something else", "not a decod survey");
+        // A record claiming a 2^31-cell grid is refused before any allocation.
+        let header_len = u64::from_le_bytes(good[12..20].try_into().unwrap_or([0; 8])) as usize;
+        let mut huge = good.clone();
+        let rows_at = 20 + header_len + 17 * 8;
+        huge[rows_at..rows_at + 4].copy_from_slice(&65_536u32.to_le_bytes());
+        huge[rows_at + 4..rows_at + 8].copy_from_slice(&32_768u32.to_le_bytes());
+        check(&huge, "implausible sizes");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
