@@ -77,6 +77,11 @@ def test_second_run_lands_in_the_survey_frame(runs: dict[str, Path]) -> None:
     survey_joints = {int(r["joint_id"]): r for r in _rows(runs["survey"] / "joints.csv")}
     matched = [r for r in _rows(runs["again"] / "joints.csv") if r["survey_joint_id"]]
     assert len(matched) >= 5, matched
+    # The joints changed between the sessions moved by design (the displaced segment's two
+    # joints shift with it): their boundary is not where the survey's was.
+    changed = {
+        j for key, value in CHANGES.items() for j in changed_joints({**_defaults(), key: value})
+    }
     errors = []
     for row in matched:
         chainage = float(row["chainage_m"])
@@ -84,11 +89,13 @@ def test_second_run_lands_in_the_survey_frame(runs: dict[str, Path]) -> None:
         joint = _true_joint(runs["sim_survey"], survey_chainage)
         truth = survey_chainage if joint is None else float(xs[joint] - x0)
         errors.append((joint, round(truth, 3), round(chainage - truth, 4)))
-        # Every matched boundary: chainage in the survey frame within 1 % of the true one
-        # (of the survey's own where it is not a joint of the simulated world).
+        if joint in changed:
+            continue
+        # Every other matched boundary: chainage in the survey frame within 1 % of the true
+        # one (of the survey's own where it is not a joint of the simulated world).
         assert abs(chainage - truth) <= 0.01 * truth, (row, truth)
     print("matched (true joint, chainage, error m):", errors)
-    assert sum(e[0] is not None for e in errors) >= 5, errors
+    assert sum(e[0] is not None and e[0] not in changed for e in errors) >= 5, errors
     # The trajectory itself is in the survey's frame (the world the survey started in).
     gt = np.loadtxt(runs["sim_again"] / "gt.tum")
     corrected = np.loadtxt(runs["again"] / "corrected.tum")

@@ -690,7 +690,7 @@ def finish_run(
     timings["optimise"] = time.perf_counter() - t0
 
     rebuild = None
-    if loops and cfg.submap.rebuild_on_correction:
+    if loops and cfg.submap.rebuild_on_correction and survey is None:
         t0 = time.perf_counter()
         ex, matched, solved, rebuild = _rebuilt(
             extraction, ex, matched, solved, cfg, mode, progress
@@ -703,10 +703,7 @@ def finish_run(
     if survey is not None:
         # Against the earlier survey: match, keep the consistent pairs, move into its frame.
         t0 = time.perf_counter()
-        anchors = (ex.anchor_stamps, ex.anchor_poses)
-        stage = reinspect(survey, ex.landmarks, anchors, scans, correction.poses, cfg)
-        if stage.poses is not None:
-            correction = replace(correction, poses=stage.poses)
+        stage, correction = _reinspect(survey, ex, scans, correction, cfg)
         timings["survey"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -718,19 +715,7 @@ def finish_run(
         _plots(out, *scans, correction.poses, kept, ex.landmarks)
         timings["plots"] = time.perf_counter() - t0
 
-    summary = RunSummary(
-        out_dir=out,
-        scans=int(scans[0].size),
-        submaps=len(ex.anchor_stamps),
-        landmarks=len(ex.landmarks),
-        queries=len(matched.results),
-        accepted=int(sum(matched.keep)),
-        mode=matched.mode,
-        split_stamp=matched.split,
-        log_duration_s=float(scans[0][-1] - scans[0][0]),
-        timings_s=timings,
-        rejections=ex.rejections,
-    )
+    summary = _summary(out, ex, matched, scans, timings)
     report = _report(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
@@ -756,6 +741,44 @@ def finish_run(
             )
         )
     return summary
+
+
+def _reinspect(
+    survey: Survey,
+    ex: _Extracted,
+    scans: tuple[FloatArray, FloatArray],
+    correction: CorrectionResult,
+    cfg: Config,
+) -> tuple[Reinspection, CorrectionResult]:
+    """The run against an earlier survey, and the trajectory moved into its frame when the
+    cross-session loops place it (:mod:`decod_rs.reinspection`)."""
+    anchors = (ex.anchor_stamps, ex.anchor_poses)
+    stage = reinspect(survey, ex.landmarks, anchors, scans, correction.poses, cfg)
+    if stage.poses is not None:
+        correction = replace(correction, poses=stage.poses)
+    return stage, correction
+
+
+def _summary(
+    out: Path,
+    ex: _Extracted,
+    matched: _Matched,
+    scans: tuple[FloatArray, FloatArray],
+    timings: dict[str, float],
+) -> RunSummary:
+    return RunSummary(
+        out_dir=out,
+        scans=int(scans[0].size),
+        submaps=len(ex.anchor_stamps),
+        landmarks=len(ex.landmarks),
+        queries=len(matched.results),
+        accepted=int(sum(matched.keep)),
+        mode=matched.mode,
+        split_stamp=matched.split,
+        log_duration_s=float(scans[0][-1] - scans[0][0]),
+        timings_s=timings,
+        rejections=ex.rejections,
+    )
 
 
 def _report(

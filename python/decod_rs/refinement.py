@@ -21,6 +21,12 @@ the odometry (on a simulated hume re-inspection one boundary seen once, at the e
 return, moved by 6 cm). The number of loops that survive the whole selection measures how
 well the two passes' submaps agree, so the rebuilt submaps replace the first ones only if
 they close more loops (:func:`keep_rebuilt`); else the first round stands.
+
+A re-inspection (``decod run --survey``) does not rebuild: its change report compares its
+descriptors with the survey's, stitched on the survey's own odometry, and a second stitching
+on one side only made unchanged joints differ (on the simulated hume re-inspection the
+widened joint fell from the top three of ``changes.csv`` to fourth, and the coarse short
+list held the exhaustive Top-1 in 87 of 90 queries instead of all).
 """
 
 from __future__ import annotations
