@@ -34,6 +34,7 @@ from test_io import (
     r1_odometry,
     ros1_log,
     ros2_cloud,
+    ros2_header,
     ros2_store,
     write_ros1_mcap,
 )
@@ -353,17 +354,40 @@ def test_cut_and_corrupt_bags_keep_what_they_can(tmp_path: Path, fmt: str) -> No
         assert len(scans) >= len(full) - 2
 
 
-def test_db3_reads_like_mcap(tmp_path: Path) -> None:
+def ros2_livox(store: object, t: float, pts: np.ndarray) -> object:
+    T = store.types  # type: ignore[attr-defined]
+    return T["livox_ros_driver2/msg/CustomMsg"](
+        header=ros2_header(store, t, "livox"),
+        timebase=round(t * NS),
+        point_num=len(pts),
+        lidar_id=1,
+        rsvd=np.zeros(3, dtype=np.uint8),
+        points=[
+            T["livox_ros_driver2/msg/CustomPoint"](
+                offset_time=k, x=p[0], y=p[1], z=p[2], reflectivity=9, tag=0, line=k % 4
+            )
+            for k, p in enumerate(pts)
+        ],
+    )
+
+
+@pytest.mark.parametrize("livox", [False, True], ids=["pointcloud2", "livox"])
+def test_db3_reads_like_mcap(tmp_path: Path, livox: bool) -> None:
     store = ros2_store("livox_ros_driver2")
     fields, step, big = LAYOUTS["xyz_f32_intensity"]
-    topics = {"/points": "sensor_msgs/msg/PointCloud2", "/odom": "nav_msgs/msg/Odometry"}
+    cloud_type = "livox_ros_driver2/msg/CustomMsg" if livox else "sensor_msgs/msg/PointCloud2"
+    topics = {"/points": cloud_type, "/odom": "nav_msgs/msg/Odometry"}
     msgs: list[tuple[str, float, object]] = list(odometry_messages(store))
     for k in range(9):
         t = 0.1 + 0.2 * k
-        data, width, row_step = cloud_bytes(random_points(80), fields, step, big)
-        msgs.append(
-            ("/points", t, ros2_cloud(store, t, data, fields, step, big, width, 1, row_step))
-        )
+        pts = random_points(80)
+        if livox:
+            msgs.append(("/points", t, ros2_livox(store, t, pts)))
+        else:
+            data, width, row_step = cloud_bytes(pts, fields, step, big)
+            msgs.append(
+                ("/points", t, ros2_cloud(store, t, data, fields, step, big, width, 1, row_step))
+            )
     paths = {}
     for name, plugin in (("mcap", StoragePlugin.MCAP), ("db3", StoragePlugin.SQLITE3)):
         paths[name] = tmp_path / name
@@ -374,6 +398,7 @@ def test_db3_reads_like_mcap(tmp_path: Path) -> None:
     assert_same_logs(paths["mcap"], paths["db3"])
     (db3,) = paths["db3"].glob("*.db3")
     assert_same_logs(paths["mcap"], db3)  # the file alone, too
+    assert cli_main(["inspect", str(db3)]) == 0
 
 
 def test_damaged_db3_is_a_fault_not_a_crash(tmp_path: Path) -> None:

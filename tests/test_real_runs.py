@@ -16,6 +16,7 @@ import pytest
 import decod_rs
 import decod_rs.pipeline
 from decod_rs import _core
+from decod_rs.cli import main as cli_main
 from decod_rs.config import load_config
 from decod_rs.ingest import WEAK_GAP_SIGMA_FACTOR, gap_bridges
 from decod_rs.pipeline import run_log
@@ -100,6 +101,22 @@ def test_odometry_gap_is_listed_and_never_inside_a_submap(sim: Path, tmp_path: P
             assert s.max() <= gap["start_s"] or s.min() >= gap["end_s"], s
 
 
+def test_restarted_odometry_is_bridged_by_a_weak_factor(sim: Path, tmp_path: Path) -> None:
+    rows = np.loadtxt(sim / "odom.tum")
+    t0 = rows[0, 0]
+    after = rows[:, 0] >= t0 + 26.0
+    keep = ~((rows[:, 0] > t0 + 20.05) & ~after)
+    rows[after, 1] += 50.0  # the LIO restarted in a frame 50 m away
+    tum = tmp_path / "restart.tum"
+    np.savetxt(tum, rows[keep], fmt="%.9f")
+    with pytest.warns(decod_rs.LogWarning):
+        report = _run(sim / "log", tmp_path / "out", odom_tum=tum)
+    (gap,) = report["ingest"]["odometry_gaps"]
+    assert gap["bridge"] == "weak" and gap["scans_skipped"] > 0
+    corrected = np.loadtxt(tmp_path / "out" / "corrected.tum")
+    assert np.all(np.isfinite(corrected))
+
+
 def test_gap_bridge_is_weak_when_the_odometry_jumps() -> None:
     stamps = np.arange(0.0, 10.0, 0.1)
     poses = np.tile(np.eye(4), (stamps.size, 1, 1))
@@ -115,6 +132,11 @@ def test_gap_bridge_is_weak_when_the_odometry_jumps() -> None:
     assert bridges == ["weak"] and factors is not None
     after = int(np.searchsorted(stamps, 6.1))
     assert factors[after] == WEAK_GAP_SIGMA_FACTOR and np.sum(factors != 1.0) == 1
+    # Up to the first submap anchor after the gap, so the anchors' edge is weak too.
+    _, factors = gap_bridges(stamps, restarted, [(3.9, 6.1, "gap")], np.array([2.0, 6.55, 9.0]))
+    assert factors is not None
+    weak = stamps[factors == WEAK_GAP_SIGMA_FACTOR]
+    np.testing.assert_allclose(weak, [6.1, 6.2, 6.3, 6.4, 6.5, 6.6])
     bridges, _ = gap_bridges(stamps, poses, [(-1.0, 0.0, "gap")])
     assert bridges == ["none"]
 
@@ -148,3 +170,29 @@ def test_interrupted_run_never_looks_finished(
     _run(sim / "log", out)
     assert (out / "notes.txt").read_text() == "mine" and not partial.exists()
     shutil.rmtree(out)
+
+
+def test_run_into_the_current_directory(
+    sim: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    _run(sim / "log", Path("."))
+    assert (here / "report.json").is_file() and not (tmp_path / "here.partial").exists()
+    (tmp_path / "file").write_text("")
+    with pytest.raises(NotADirectoryError):
+        _run(sim / "log", tmp_path / "file")
+
+
+def test_cli_prints_the_damage_once_on_one_line(
+    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    raw = (sim / "log.bag").read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(raw[: len(raw) // 2])
+    args = ["run", str(cut), "--preset", "pipe", "--no-plots", "--out", str(tmp_path / "o")]
+    assert cli_main(args) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "warning" in line]
+    assert len(lines) == 1 and lines[0].startswith(f"decod run: warning: {cut}: truncated at byte")

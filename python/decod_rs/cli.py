@@ -6,8 +6,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import TextIO
 
 from decod_rs import __version__
+from decod_rs.ingest import LogWarning
 
 # Module names under decod_rs.commands, in the order `decod --help` lists them.
 COMMANDS = [
@@ -35,11 +40,38 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@contextmanager
+def _plain_log_warnings(command: str) -> Iterator[None]:
+    """A damaged log's warning as one line ``decod run: warning: ...`` (not Python's
+    ``file:line`` form with a source line); other warnings as usual."""
+    default = warnings.showwarning
+
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: TextIO | None = None,
+        line: str | None = None,
+    ) -> None:
+        if issubclass(category, LogWarning):
+            print(f"decod {command}: warning: {message}", file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = default
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with _plain_log_warnings(args.command):
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("decod: interrupted", file=sys.stderr)
         return 130

@@ -127,11 +127,16 @@ def _normal_speed(stamps: FloatArray, poses: FloatArray, gaps: list[tuple[float,
 
 
 def gap_bridges(
-    stamps: FloatArray, poses: FloatArray, gaps: list[tuple[float, float, str]]
+    stamps: FloatArray,
+    poses: FloatArray,
+    gaps: list[tuple[float, float, str]],
+    anchor_stamps: FloatArray | None = None,
 ) -> tuple[list[str], FloatArray | None]:
     """How each gap is bridged (module doc) and the per-scan sigma factors (M,) for
-    ``correct_trajectory`` (None when no gap is weak). A weak gap's factor sits on the first
-    scan after it, so the edge across the gap (and the one after that scan) is weakened."""
+    ``correct_trajectory`` (None when no gap is weak). A weak gap's factor sits on the scans
+    from the first after it to the first submap anchor after it (``anchor_stamps``), so the
+    edge across the gap is weak at scan and at submap granularity (an edge takes the larger
+    factor of its ends: the edge after that scan or anchor is weakened too)."""
     spans = [(a, b) for a, b, _ in gaps]
     speed = _normal_speed(stamps, poses, spans)
     factors = np.ones(stamps.size)
@@ -147,7 +152,13 @@ def gap_bridges(
             bridges.append("odometry")
         else:
             bridges.append("weak")
-            factors[after] = WEAK_GAP_SIGMA_FACTOR
+            last = after
+            if anchor_stamps is not None:
+                later = np.asarray(anchor_stamps, dtype=np.float64)
+                later = later[later >= stamps[after]]
+                if later.size:
+                    last = int(np.searchsorted(stamps, later.min(), side="left"))
+            factors[after : last + 1] = WEAK_GAP_SIGMA_FACTOR
     return bridges, (factors if np.any(factors != 1.0) else None)
 
 
@@ -156,10 +167,11 @@ def ingest_section(
     points_topic: str,
     scans: tuple[FloatArray, FloatArray],
     gap_periods: float,
+    anchor_stamps: FloatArray | None = None,
 ) -> tuple[dict[str, Any], FloatArray | None]:
     """``report.json``'s ``ingest`` section and the gap sigma factors (see
     :func:`gap_bridges`) from a stream's health and the scan odometry it yielded."""
-    bridges, factors = gap_bridges(scans[0], scans[1], health.gaps)
+    bridges, factors = gap_bridges(scans[0], scans[1], health.gaps, anchor_stamps)
     skipped = np.asarray(health.skipped_in_gaps, dtype=np.float64)
     gaps = [
         {
@@ -210,6 +222,7 @@ def warn_once(log: object, health: StreamHealth) -> None:
         parts.append(f"{c['undecodable']} undecodable and {c['out_of_order']} out-of-order clouds")
     more = "" if len(health.faults) <= 3 else f" (+{len(health.faults) - 3} more faults)"
     text = "; ".join(parts)
+    where = "" if health.faults else f"{log}: "  # a fault's message names its file
     warnings.warn(
-        f"{log}: {text}{more}; the run went on, see report.json 'ingest'", LogWarning, stacklevel=3
+        f"{where}{text}{more}; the run went on, see report.json 'ingest'", LogWarning, stacklevel=3
     )

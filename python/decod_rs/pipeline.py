@@ -43,6 +43,7 @@ from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
 from decod_rs.run_files import (
     LandmarkTable,
     LoopTable,
+    check_run_dir,
     staged_run_dir,
     write_landmarks_csv,
     write_loops_csv,
@@ -591,7 +592,7 @@ def run_log(
 
         require_rerun()  # fail before the run, not after it
     srv = None if survey is None else load_survey(survey)  # fail before the run
-    log, out = Path(log), Path(out_dir)
+    log, out = Path(log), check_run_dir(Path(out_dir))
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
@@ -614,8 +615,10 @@ def run_log(
     warn_once(log, health)  # damage, gaps: the run goes on with what the log holds
     if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
+    gap_periods = float(cfg.submap.odometry_gap_periods)
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
     ingest, gap_factors = ingest_section(
-        health, processor.points_topic, scans, float(cfg.submap.odometry_gap_periods)
+        health, processor.points_topic, scans, gap_periods, anchors
     )
 
     head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}

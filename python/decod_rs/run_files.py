@@ -56,6 +56,7 @@ __all__ = [
     "LOOPS_COLUMNS",
     "LandmarkTable",
     "LoopTable",
+    "check_run_dir",
     "loops_to_constraints",
     "read_landmarks_csv",
     "read_loops_csv",
@@ -319,13 +320,22 @@ def _publish(staging: Path, out: Path) -> None:
     staging.rmdir()
 
 
+def check_run_dir(out: Path) -> Path:
+    """``out`` if a run can be published there (a directory, or nothing yet), else
+    ``NotADirectoryError`` (checked before the run, not after it)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(20, "the run's output must be a directory", str(out))
+    return out
+
+
 @contextmanager
 def staged_run_dir(out: Path) -> Iterator[Path]:
     """A fresh ``OUT.partial`` directory beside ``out`` to write a run into, published into
     ``out`` when the block completes (:func:`_publish`). If the block raises (an exception,
     Ctrl-C), ``OUT.partial`` stays as it is, clearly incomplete, and ``out`` is untouched: a
     previous complete run there stays complete. A stale ``OUT.partial`` is cleared first."""
-    out = Path(out)
+    out = check_run_dir(out).resolve()  # `--out .` has no name to put a sibling beside
     staging = out.with_name(out.name + PARTIAL_SUFFIX)
     if staging.exists():
         shutil.rmtree(staging)

@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::log::{FileSummary, TopicInfo, log_error};
-use super::mcap_file::lz4_frame;
+use super::mcap_file::{lz4_frame, read_limited};
 use super::source::{
     ChannelMeta, ContainerReader, FaultKind, Item, LogFault, RECORD_LENGTH_LIMIT, RawMessage,
     io_error, le_u32, le_u64,
@@ -490,14 +490,7 @@ fn decompress(compression: &str, data: &[u8], size: usize) -> std::result::Resul
     let out = match compression {
         "none" => data.to_vec(),
         "lz4" => lz4_frame(data, size)?,
-        "bz2" => {
-            let mut out = Vec::with_capacity(size);
-            bzip2::read::BzDecoder::new(data)
-                .take(size as u64 + 1)
-                .read_to_end(&mut out)
-                .map_err(|e| format!("bz2: {e}"))?;
-            out
-        }
+        "bz2" => read_limited(bzip2::read::BzDecoder::new(data), size, "bz2")?,
         other => return Err(format!("unsupported chunk compression `{other}`")),
     };
     if out.len() != size {

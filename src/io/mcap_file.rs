@@ -348,7 +348,9 @@ fn decompress_chunk(body: &[u8]) -> std::result::Result<Vec<u8>, ChunkError> {
     let size = header.uncompressed_size as usize;
     let out = match header.compression.as_str() {
         "" => Ok(data.into_owned()),
-        "zstd" => zstd::bulk::decompress(&data, size).map_err(|e| format!("zstd: {e}")),
+        "zstd" => zstd::stream::read::Decoder::new(&data[..])
+            .map_err(|e| format!("zstd: {e}"))
+            .and_then(|d| read_limited(d, size, "zstd")),
         "lz4" => lz4_frame(&data, size),
         other => Err(format!("unsupported compression `{other}`")),
     }
@@ -372,15 +374,29 @@ fn decompress_chunk(body: &[u8]) -> std::result::Result<Vec<u8>, ChunkError> {
     Ok(out)
 }
 
+/// Initial capacity of a decompression buffer. A chunk's declared size is not trusted for
+/// the allocation (a corrupt header may claim 1 GiB for a few bytes): the buffer grows as the
+/// data really decompresses, and stops one byte past the declared size.
+const INITIAL_CAPACITY: usize = 1 << 20;
+
+/// Everything `reader` yields up to `size + 1` bytes (so that too long is detectable).
+pub(crate) fn read_limited<R: Read>(
+    reader: R,
+    size: usize,
+    what: &str,
+) -> std::result::Result<Vec<u8>, String> {
+    let mut out = Vec::with_capacity(size.min(INITIAL_CAPACITY));
+    reader
+        .take(size as u64 + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| format!("{what}: {e}"))?;
+    Ok(out)
+}
+
 /// An LZ4 frame decompressed to at most `size` bytes (MCAP and ROS 1 bags both use frames).
 pub(crate) fn lz4_frame(data: &[u8], size: usize) -> std::result::Result<Vec<u8>, String> {
     let decoder = lz4::Decoder::new(data).map_err(|e| format!("lz4: {e}"))?;
-    let mut out = Vec::with_capacity(size);
-    decoder
-        .take(size as u64 + 1)
-        .read_to_end(&mut out)
-        .map_err(|e| format!("lz4: {e}"))?;
-    Ok(out)
+    read_limited(decoder, size, "lz4")
 }
 
 impl ContainerReader for McapFile {

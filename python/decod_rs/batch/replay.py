@@ -111,8 +111,9 @@ def run_from_extraction(
         raise ValueError(f"mode: {opts.mode!r} is not one of {MODES}")
     health = StreamHealth.from_core(extraction.processor.health())
     gap_periods = float(extraction.cfg.submap.odometry_gap_periods)
+    anchors = np.asarray(extraction.extracted.anchor_stamps, dtype=np.float64)
     ingest, gap_factors = ingest_section(
-        health, extraction.processor.points_topic, extraction.scans, gap_periods
+        health, extraction.processor.points_topic, extraction.scans, gap_periods, anchors
     )
     head = {
         "preset": opts.preset,
