@@ -168,6 +168,16 @@ def test_every_run_writes_a_survey_and_other_versions_are_refused(
     assert not (tmp_path / "out" / "corrected.tum").exists()
     with pytest.raises(FileNotFoundError, match="no survey"):
         load_survey(tmp_path / "missing")
+    # A survey on another grid is refused before the run, naming the parameter.
+    with pytest.raises(ValueError, match=r"descriptor\.half_length_m"):
+        run_log(
+            runs["sim_again"] / "log",
+            tmp_path / "tunnel",
+            preset="tunnel",
+            survey=runs["survey"],
+            progress=False,
+        )
+    assert not (tmp_path / "tunnel" / "corrected.tum").exists()
 
 
 def test_short_list_holds_the_exhaustive_top1(runs: dict[str, Path]) -> None:
