@@ -218,6 +218,7 @@ def test_aliased_pipe_gives_no_cross_session_loop(tmp_path: Path) -> None:
     survey = _run(first, tmp_path / "run_a")
     again = _run(second, tmp_path / "run_b", survey=survey)
     report = json.loads((again / "report.json").read_text())["survey"]
+    print("aliased:", {k: report[k] for k in ("queries", "accepted", "kept", "rejections")})
     assert report["kept"] == 0, report
     assert not report["placed_in_survey_frame"]
     loops = read_loops_csv(again / "loops.csv")
