@@ -175,6 +175,16 @@ def test_every_run_writes_a_survey_and_other_versions_are_refused(
     assert not (tmp_path / "out" / "corrected.tum").exists()
     with pytest.raises(FileNotFoundError, match="no survey"):
         load_survey(tmp_path / "missing")
+    # A survey on another grid is refused before the run, naming the parameter.
+    with pytest.raises(ValueError, match=r"descriptor\.half_length_m"):
+        run_log(
+            runs["sim_again"] / "log",
+            tmp_path / "tunnel",
+            preset="tunnel",
+            survey=runs["survey"],
+            progress=False,
+        )
+    assert not (tmp_path / "tunnel" / "corrected.tum").exists()
 
 
 def test_short_list_holds_the_exhaustive_top1(runs: dict[str, Path]) -> None:
@@ -215,6 +225,7 @@ def test_aliased_pipe_gives_no_cross_session_loop(tmp_path: Path) -> None:
     survey = _run(first, tmp_path / "run_a")
     again = _run(second, tmp_path / "run_b", survey=survey)
     report = json.loads((again / "report.json").read_text())["survey"]
+    print("aliased:", {k: report[k] for k in ("queries", "accepted", "kept", "rejections")})
     assert report["kept"] == 0, report
     assert not report["placed_in_survey_frame"]
     loops = read_loops_csv(again / "loops.csv")

@@ -112,8 +112,14 @@ def residual_difference(
     diff = np.where(query.mask, query.descriptor, np.nan) - aligned
     # Cells far off the wall in either view (an opening, a pipe connection, a shadow edge)
     # differ with the viewpoint by centimetres: not a change of the wall.
+    # Their rims too (one cell around): a rim's cell straddles wall and opening.
     limit = WALL_FRACTION * query.radius_m
-    diff[(np.abs(query.descriptor) > limit) | ~(np.abs(np.nan_to_num(aligned)) <= limit)] = np.nan
+    far = (np.abs(query.descriptor) > limit) | (np.abs(np.nan_to_num(aligned)) > limit)
+    rim = far.copy()
+    for axis in (0, 1):
+        for step in (-1, 1):
+            rim |= np.roll(far, step, axis=axis)
+    diff[rim] = np.nan
     seen = np.isfinite(diff)
     x = np.where(seen, diff, 0.0)
     z = (np.arange(rows) - 0.5 * (rows - 1))[:, None] * np.ones((1, cols))

@@ -50,7 +50,7 @@ from decod_rs.run_files import (
 )
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
-from decod_rs.survey import Survey, load_survey, survey_config
+from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
 
@@ -601,6 +601,8 @@ def run_log(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     cfg, auto = _configure(log, preset, config_path, topics, sequential, srv)
+    if srv is not None:
+        check_compatible(srv, cfg)
     timings["configure"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -752,8 +754,8 @@ def _reinspect(
 ) -> tuple[Reinspection, CorrectionResult]:
     """The run against an earlier survey, and the trajectory moved into its frame when the
     cross-session loops place it (:mod:`decod_rs.reinspection`)."""
-    anchors = (ex.anchor_stamps, ex.anchor_poses)
-    stage = reinspect(survey, ex.landmarks, anchors, scans, correction.poses, cfg)
+    stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    stage = reinspect(survey, ex.landmarks, stamps, scans, correction.poses, cfg)
     if stage.poses is not None:
         correction = replace(correction, poses=stage.poses)
     return stage, correction

@@ -185,18 +185,21 @@ class Reinspection:
 def reinspect(
     survey: Survey,
     landmarks: list[Landmark],
-    anchors: tuple[list[float], list[FloatArray]],
+    anchor_stamps: FloatArray,
     scans: tuple[FloatArray, FloatArray],
     corrected: FloatArray,
     cfg: Config,
 ) -> Reinspection:
-    """The survey stage (module docs): ``anchors`` = the run's (stamps, odometry poses; the
-    stamps are the landmarks' submap stamps),
-    ``scans`` = (stamps, odometry), ``corrected`` = the run's own corrected scan poses."""
-    stamps = np.asarray(anchors[0], dtype=np.float64)
+    """The survey stage (module docs): ``anchor_stamps`` (A,) the run's submap anchors (the
+    landmarks' submap stamps among them), ``scans`` = (stamps, odometry), ``corrected`` the
+    run's own corrected scan poses."""
     # Pairs are judged on the run's own corrected anchors (its loops removed most drift).
-    own = interpolate_poses(scans[0], corrected, stamps) if stamps.size else np.zeros((0, 4, 4))
-    by_stamp = dict(zip(anchors[0], own, strict=True))
+    own = (
+        interpolate_poses(scans[0], corrected, anchor_stamps)
+        if anchor_stamps.size
+        else np.zeros((0, 4, 4))
+    )
+    by_stamp = {float(s): p for s, p in zip(anchor_stamps, own, strict=True)}
     cross = cross_session(survey, landmarks, by_stamp, path_along(*scans), cfg)
-    poses = place_in_survey(cross, landmarks, (scans[0], corrected), stamps, cfg)
+    poses = place_in_survey(cross, landmarks, (scans[0], corrected), anchor_stamps, cfg)
     return Reinspection(cross, poses)

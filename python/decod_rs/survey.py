@@ -45,6 +45,7 @@ from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, prop
 from decod_rs.landmark_factor import landmark_factor
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.selection import LoopEvidence, effective_db_origin, select_consistent
+from decod_rs.tum import interpolate_poses
 
 FloatArray = NDArray[np.float64]
 
@@ -65,6 +66,7 @@ __all__ = [
     "CrossSession",
     "Survey",
     "chainage_along",
+    "check_compatible",
     "cross_session",
     "load_survey",
     "write_survey",
@@ -388,8 +390,6 @@ def place_in_survey(
 ) -> FloatArray | None:
     """Step 3: the run's scan poses (M, 4, 4) in the survey frame, starting from ``scans``
     (stamps, the run's own corrected poses); None when no pair stayed."""
-    from decod_rs.tum import interpolate_poses
-
     if not cross.kept:
         return None
     anchor_own = interpolate_poses(*scans, anchor_stamps)
@@ -418,6 +418,19 @@ def _merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
         else:
             out[key] = value
     return out
+
+
+def check_compatible(survey: Survey, cfg: Config) -> None:
+    """``ValueError`` when ``cfg``'s descriptor grid is not the survey's: descriptors on
+    other grids (or cell sizes) cannot be compared (say so before the run, not after)."""
+    theirs = survey.config.get("descriptor", {})
+    ours = cfg.descriptor.to_dict()
+    for key in ("rows", "cols", "half_length_m"):
+        if key in theirs and float(theirs[key]) != float(ours[key]):
+            raise ValueError(
+                f"--survey {survey.source}: descriptor.{key} is {theirs[key]} in the survey and "
+                f"{ours[key]} here; run without --preset/--config to use the survey's config"
+            )
 
 
 def survey_config(survey: Survey) -> Config:
