@@ -68,6 +68,11 @@ class CorrectedFrame:
             self._cache[stamp] = pose
         return np.asarray(pose[:3, :3] @ np.asarray(point) + pose[:3, 3], dtype=np.float64)
 
+    def loop_ends(self, r: QueryResult) -> tuple[FloatArray, FloatArray]:
+        """The query boundary and its Top-1 (moved by the verified offset) in this frame."""
+        query = self.world(r.query_stamp, np.asarray(r.query_origin, dtype=np.float64))
+        return query, self.world(r.candidate_stamp, effective_db_origin(r))
+
 
 def _resolvable(
     r: QueryResult,
@@ -75,8 +80,7 @@ def _resolvable(
     frame: CorrectedFrame,
     tolerance_m: float,
 ) -> bool:
-    query = frame.world(r.query_stamp, np.asarray(r.query_origin, dtype=np.float64))
-    top = frame.world(r.candidate_stamp, effective_db_origin(r))
+    query, top = frame.loop_ends(r)
     if float(np.linalg.norm(query - top)) > tolerance_m:
         return False
     if r.runner_up_index is None or not 0 <= r.runner_up_index < len(db_landmarks):

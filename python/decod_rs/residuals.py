@@ -26,7 +26,6 @@ from numpy.typing import NDArray
 
 from decod_rs._core import QueryResult
 from decod_rs.disambiguation import CorrectedFrame
-from decod_rs.selection import effective_db_origin
 
 FloatArray = NDArray[np.float64]
 
@@ -45,8 +44,7 @@ def loop_residuals(
     out = np.full(len(results), np.nan)
     for k, (r, ok) in enumerate(zip(results, keep, strict=True)):
         if ok and r.candidate_index is not None:
-            query = frame.world(r.query_stamp, np.asarray(r.query_origin, dtype=np.float64))
-            db = frame.world(r.candidate_stamp, effective_db_origin(r))
+            query, db = frame.loop_ends(r)
             out[k] = float(np.linalg.norm(query - db))
     return out
 

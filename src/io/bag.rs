@@ -290,15 +290,7 @@ impl BagFile {
     }
 
     fn fault(&self, kind: FaultKind, offset: u64, reason: impl Into<String>) -> LogFault {
-        LogFault {
-            file: self.path.clone(),
-            kind,
-            offset,
-            reason: reason.into(),
-            last_complete_ns: self.last_time,
-            lost_span_ns: None,
-            messages_lost: None,
-        }
+        LogFault::new(&self.path, kind, offset, reason, self.last_time)
     }
 
     /// Connection and message records (top level or in a chunk); a message is returned.

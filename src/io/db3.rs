@@ -124,15 +124,13 @@ impl ContainerReader for Db3File {
                 Ok(false) => self.done = true,
                 Err(e) => {
                     self.done = true;
-                    return Some(Item::Fault(LogFault {
-                        file: self.path.clone(),
-                        kind: FaultKind::Unreadable,
-                        offset: u64::try_from(self.last_id).unwrap_or(0),
-                        reason: format!("database error after row {}: {e}", self.last_id),
-                        last_complete_ns: self.last_time,
-                        lost_span_ns: None,
-                        messages_lost: None,
-                    }));
+                    return Some(Item::Fault(LogFault::new(
+                        &self.path,
+                        FaultKind::Unreadable,
+                        u64::try_from(self.last_id).unwrap_or(0),
+                        format!("database error after row {}: {e}", self.last_id),
+                        self.last_time,
+                    )));
                 }
             }
         }

@@ -100,14 +100,9 @@ impl McapFile {
 
     fn fault(&self, kind: FaultKind, offset: u64, reason: impl Into<String>) -> LogFault {
         LogFault {
-            file: self.path.clone(),
-            kind,
-            offset,
-            reason: reason.into(),
-            last_complete_ns: self.last_time,
-            lost_span_ns: None,
             // Cut inside the summary section: every message was read.
             messages_lost: self.in_summary.then_some(0),
+            ..LogFault::new(&self.path, kind, offset, reason, self.last_time)
         }
     }
 

@@ -83,6 +83,26 @@ pub struct LogFault {
 }
 
 impl LogFault {
+    /// A fault in `file` at `offset`, after the last complete message at `last_complete_ns`;
+    /// what it cost (span, messages) unknown until the caller says.
+    pub fn new(
+        file: &Path,
+        kind: FaultKind,
+        offset: u64,
+        reason: impl Into<String>,
+        last_complete_ns: Option<u64>,
+    ) -> Self {
+        Self {
+            file: file.to_path_buf(),
+            kind,
+            offset,
+            reason: reason.into(),
+            last_complete_ns,
+            lost_span_ns: None,
+            messages_lost: None,
+        }
+    }
+
     /// What happened and what it cost, without the file name.
     pub fn describe(&self) -> String {
         let secs = |ns: u64| ns as f64 * 1e-9;
