@@ -141,6 +141,10 @@ pub struct SubmapDiagnostics {
     pub contour_inlier_fraction: f64,
     /// Median absolute offset from the contour, metres.
     pub contour_median_abs_offset_m: f64,
+    /// 90th percentile of the absolute offsets from the contour over the chart (on at most
+    /// `RELIEF_SAMPLE` evenly strided points), metres: the wall's relief about the contour
+    /// (steel arches before the rock, ribs, couplers), which `auto` measures on its probes.
+    pub contour_p90_abs_offset_m: f64,
     /// Local DoG maxima above threshold before non-maximum suppression.
     pub boundary_candidates: usize,
     /// Robust spread of the DoG profile, metres.
@@ -298,6 +302,7 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
     diag.contour_radius_m = contour.mean_radius_m;
     diag.contour_inlier_fraction = inlier_fraction;
     diag.contour_median_abs_offset_m = fit.median_abs_offset_m;
+    diag.contour_p90_abs_offset_m = p90_abs_offset(&chart);
     if inlier_fraction < cfg.contour.min_inlier_fraction {
         let reason = RejectionReason::ContourMisfit {
             inlier_fraction,
@@ -371,6 +376,21 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         });
     }
     out
+}
+
+/// Points sampled for `contour_p90_abs_offset_m`; enough for a percentile to 0.3 %.
+const RELIEF_SAMPLE: usize = 50_000;
+
+/// 90th percentile of `|s|` over an evenly strided subset of `chart` (0 if empty).
+fn p90_abs_offset(chart: &[ChartPoint]) -> f64 {
+    let stride = chart.len().div_ceil(RELIEF_SAMPLE).max(1);
+    let mut s: Vec<f64> = chart.iter().step_by(stride).map(|q| q.s.abs()).collect();
+    if s.is_empty() {
+        return 0.0;
+    }
+    let k = (s.len() * 9 / 10).min(s.len() - 1);
+    let (_, v, _) = s.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+    *v
 }
 
 /// The chart cut to the longest run of axial slices (descriptor rows) that each pass the

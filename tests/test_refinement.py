@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -68,3 +70,41 @@ def test_the_rebuilt_submaps_stand_only_if_they_close_more_loops() -> None:
     assert decision.needed and not decision.kept  # not rebuilt yet
     assert replace(decision, loops=(4, 47)).report()["kept"] is True
     assert replace(decision, loops=(38, 37)).report()["kept"] is False
+
+
+def test_a_rebuilt_round_tracks_boundaries_in_the_corrected_frame(tmp_path: Path) -> None:
+    # The return pass's odometry is 15 % short: consecutive anchors 2.4 m apart disagree by
+    # 0.36 m about a boundary's position, beyond the track radius, so in the odometry frame
+    # the return pass has almost no track and its scale is not measured (5 pairs, matrix
+    # horseshoe-avia-turn-s0: endpoint 4.34 -> 1.75 m). Linked in the first round's corrected
+    # trajectory, its tracks measure the scale, and the last metres (no loop: the sensor looks
+    # out of the portal) get it too. Seed 22 is new to this rule.
+    import json
+
+    from decod_rs.evaluate import evaluate_run
+    from decod_rs.pipeline import run_log
+    from decod_rs.sim import simulate
+
+    sim = tmp_path / "sim"
+    simulate(
+        "horseshoe",
+        sim,
+        seed=22,
+        sensor="avia",
+        speed_mps=1.0,
+        length_m=30.0,
+        drift="legs:-0.05,-0.15",
+        progress=False,
+    )
+    out = tmp_path / "run"
+    run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False)
+    report = json.loads((out / "report.json").read_text())
+    assert report["rebuild"]["kept"], report["rebuild"]
+    passes = report["sequential"]["odometry_scale"]
+    assert [p["rescaled"] for p in passes] == [True, True], passes
+    # The odometry reports 85 % of the return: its scale is 1 / 0.85 = 1.18.
+    assert passes[1]["measured_scale"] == pytest.approx(1 / 0.85, abs=0.03), passes
+    result, _ = evaluate_run(out, sim / "gt.tum", sim / "joints.json")
+    traj = result["trajectory"]
+    assert traj["corrected"]["endpoint_error_m"] < 0.2 * traj["odometry"]["endpoint_error_m"]
+    assert result["loops"]["coarse"]["false_positives"] == 0

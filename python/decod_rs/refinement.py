@@ -16,6 +16,15 @@ and matches them again. Only the submaps' *content* changes: the pose graph keep
 odometry's factors, and the new anchors are placed on the odometry like the first ones, so no
 measurement is counted twice. ``submap.rebuild_on_correction = false`` turns it off.
 
+The rebuilt round also *links* the views of a boundary into tracks (:mod:`decod_rs.tracks`)
+in the first round's corrected trajectory rather than the odometry: a pass 15 % short puts
+two views of one arch from anchors 2.4 m apart 0.36 m apart in the odometry frame, beyond
+the track radius, so that pass had almost no track and its scale stayed unmeasured (5 pairs
+on the return of the simulated horseshoe + forward sensor, endpoint 4.34 -> 1.75 m). In the
+corrected frame the same views coincide; the sequential factors still measure against the
+odometry (only which views belong together changes), the return's scale is measured (1.19,
+40 pairs), and the last metres, where no loop closes, get it too (endpoint 0.02 m).
+
 The corrected trajectory is not better everywhere: far from any loop it can stitch worse than
 the odometry. The number of loops that survive the whole selection measures how well the two
 passes' submaps agree, so the rebuilt submaps replace the first ones unless they close fewer

@@ -179,6 +179,8 @@ pub(crate) struct PyDiagnostics {
     contour_inlier_fraction: f64,
     /// Median |offset| from the contour, metres.
     contour_median_abs_offset_m: f64,
+    /// 90th percentile of |offset| from the contour (the wall's relief), metres.
+    contour_p90_abs_offset_m: f64,
     /// DoG maxima above threshold before NMS.
     boundary_candidates: usize,
     /// Robust spread of the DoG profile, metres.
@@ -199,6 +201,7 @@ impl From<&SubmapDiagnostics> for PyDiagnostics {
             contour_radius_m: d.contour_radius_m,
             contour_inlier_fraction: d.contour_inlier_fraction,
             contour_median_abs_offset_m: d.contour_median_abs_offset_m,
+            contour_p90_abs_offset_m: d.contour_p90_abs_offset_m,
             boundary_candidates: d.boundary_candidates,
             dog_sigma_m: d.dog_sigma_m,
             dog_threshold_m: d.dog_threshold_m,
