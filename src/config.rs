@@ -666,6 +666,19 @@ impl DecodConfig {
                 ));
             }
         }
+        // Voxel indices pack into 21 bits each (`submap::VOXEL_INDEX_LIMIT`).
+        let span = self.submap.max_range_m / self.submap.voxel_m;
+        if span >= crate::submap::VOXEL_INDEX_LIMIT as f64 {
+            return Err(DecodError::config(
+                "submap.max_range_m",
+                format!(
+                    "{} m is {span:.0} voxels of submap.voxel_m = {} m; at most {} are supported",
+                    self.submap.max_range_m,
+                    self.submap.voxel_m,
+                    crate::submap::VOXEL_INDEX_LIMIT - 1
+                ),
+            ));
+        }
         // Extraction sections (issue 2).
         for (name, ok) in [
             ("contour.max_fit_points", self.contour.max_fit_points >= 3),
