@@ -13,7 +13,9 @@ use crate::extract::{ExtractionOutcome, extract_all};
 use crate::geometry::Pose;
 use crate::io::{ScanStream, ScanStreamOptions};
 use crate::map::SegmentMap;
+use crate::scan::Scan;
 use crate::submap::{Submap, SubmapBuilder};
+use rayon::prelude::*;
 
 /// What the pose graph needs of a submap once its points are gone.
 #[derive(Clone, Debug)]
@@ -39,7 +41,7 @@ pub struct LogProcessor {
     builder: SubmapBuilder,
     config: DecodConfig,
     batch: usize,
-    pending: Vec<Submap>,
+    pending: Vec<Vec<Scan>>,
     scan_stamps: Vec<f64>,
     scan_poses: Vec<Pose>,
     stream_done: bool,
@@ -111,20 +113,20 @@ impl LogProcessor {
                         .last()
                         .is_some_and(|&previous| self.stream.gap_between(previous, scan.stamp));
                     if crosses {
-                        if let Some(submap) = self.builder.finish()? {
-                            self.pending.push(submap);
+                        if let Some(window) = self.builder.finish_window() {
+                            self.pending.push(window);
                         }
                     }
                     self.scan_stamps.push(scan.stamp);
                     self.scan_poses.push(scan.world_from_body);
-                    if let Some(submap) = self.builder.push(scan)? {
-                        self.pending.push(submap);
+                    if let Some(window) = self.builder.push_window(scan)? {
+                        self.pending.push(window);
                     }
                 }
                 None => {
                     self.stream_done = true;
-                    if let Some(submap) = self.builder.finish()? {
-                        self.pending.push(submap);
+                    if let Some(window) = self.builder.finish_window() {
+                        self.pending.push(window);
                     }
                 }
             }
@@ -135,7 +137,14 @@ impl LogProcessor {
             }
             return Ok(None);
         }
-        let submaps = std::mem::take(&mut self.pending);
+        // Accumulating a window (0.8-1.5 M points with 64 beams) costs more than extracting
+        // its submap: the batch's windows are built in parallel too.
+        let windows = std::mem::take(&mut self.pending);
+        let submaps = windows
+            .par_iter()
+            .map(|w| Submap::from_window(w, &self.config.submap))
+            .collect::<Result<Vec<_>>>()?;
+        drop(windows);
         let config = &self.config;
         let map = &mut self.map;
         // The map is filled on one worker while the others extract.

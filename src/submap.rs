@@ -150,6 +150,12 @@ impl Submap {
         })
     }
 
+    /// The submap of a builder's window ([`SubmapBuilder::push_window`]): anchored at its
+    /// middle scan.
+    pub fn from_window(window: &[Scan], cfg: &SubmapConfig) -> Result<Self> {
+        Self::from_scans(window, window.len() / 2, cfg)
+    }
+
     /// A submap made directly from points already in one frame (no odometry): for clouds
     /// that were accumulated elsewhere. `gravity` and `forward` need not be unit; they are
     /// normalised and must be finite and non-zero.
@@ -261,6 +267,24 @@ impl SubmapBuilder {
 
     /// Adds the next scan (time order); returns a submap when this scan completes a window.
     pub fn push(&mut self, scan: Scan) -> Result<Option<Submap>> {
+        match self.push_window(scan)? {
+            Some(window) => Submap::from_window(&window, &self.cfg).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// Emits the partial window left at the end of the stream, if any (a short submap is
+    /// still extracted; its size is in its `scan_stamps`).
+    pub fn finish(&mut self) -> Result<Option<Submap>> {
+        self.finish_window()
+            .map(|window| Submap::from_window(&window, &self.cfg))
+            .transpose()
+    }
+
+    /// [`Self::push`] without the accumulation: the window of scans when this scan completes
+    /// one, for [`Submap::from_window`] to build later (the log processor builds a batch of
+    /// them in parallel).
+    pub fn push_window(&mut self, scan: Scan) -> Result<Option<Vec<Scan>>> {
         if !scan.stamp.is_finite() || scan.stamp < self.last_stamp {
             return Err(DecodError::invalid(
                 "scan.stamp",
@@ -280,25 +304,21 @@ impl SubmapBuilder {
         }
         self.window.push(scan);
         if self.window.len() >= self.cfg.scans_per_submap {
-            return self.emit().map(Some);
+            return Ok(self.finish_window());
         }
         Ok(None)
     }
 
-    /// Emits the partial window left at the end of the stream, if any (a short submap is
-    /// still extracted; its size is in its `scan_stamps`).
-    pub fn finish(&mut self) -> Result<Option<Submap>> {
+    /// [`Self::finish`] without the accumulation: the partial window, if any.
+    pub fn finish_window(&mut self) -> Option<Vec<Scan>> {
         if self.window.is_empty() {
-            return Ok(None);
+            return None;
         }
-        self.emit().map(Some)
-    }
-
-    fn emit(&mut self) -> Result<Submap> {
-        let scans = std::mem::take(&mut self.window);
-        let submap = Submap::from_scans(&scans, scans.len() / 2, &self.cfg);
-        self.window = Vec::with_capacity(self.cfg.scans_per_submap);
-        submap
+        let window = std::mem::replace(
+            &mut self.window,
+            Vec::with_capacity(self.cfg.scans_per_submap),
+        );
+        Some(window)
     }
 }
 
