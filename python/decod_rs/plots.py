@@ -252,7 +252,7 @@ def plot_map_consistency(path: str | Path, figures: Mapping[str, Consistency]) -
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("chainage along the outbound path [m]")
-    ax.set_ylabel("wall thickness (RMS about the section) [mm]")
+    ax.set_ylabel("wall thickness (RMS about local planes) [mm]")
     ax.set_title("map consistency without ground truth: the wall where the passes overlap")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)

@@ -78,7 +78,7 @@ def write_visuals(
     section = _map_section(processor, clouds)
     if map:
         anchors = np.asarray(processor.map_submap_stamps(), dtype=np.float64)
-        voxel = processor.map_voxel_m
+        voxel = float(processor.map_voxel_m or 0.0)  # the map is kept: never None here
 
         def finish(name: str) -> Consistency:
             write_map_ply(out / MAP_FILES[name], clouds[name], float(stamps[0]), name)
@@ -122,7 +122,7 @@ def _consistency(
     stamps: FloatArray,
     poses: FloatArray,
     split: float | None,
-    voxel_m: float | None,
+    voxel_m: float,
 ) -> Consistency:
     """The figure of one map; ``anchors``: the map's submap stamps (K,)."""
     positions = anchor_poses(anchors, stamps, poses)[:, :3, 3]
@@ -132,10 +132,10 @@ def _consistency(
 def _consistency_section(figures: dict[str, Consistency]) -> dict[str, Any]:
     """Before (odometry) and after (corrected), with what the number means."""
     section: dict[str, Any] = {
-        "what": "wall thickness where the outbound and return passes overlap: RMS of both "
-        "passes' radial residuals about their common cross-section, per metre of corridor "
-        "(the floors: each pass about its own section); lateral and angular misalignment "
-        "only, blind to the axial error of a uniform corridor",
+        "what": "wall thickness where the outbound and return passes overlap: RMS distance "
+        "of both passes' points from their common plane in cells of 3 map voxels (cell_m), "
+        "per metre of corridor (the floors: each pass about its own planes); misalignment "
+        "across the wall only, blind to the axial error of a uniform corridor",
         "unit": "mm",
     }
     for name, fig in figures.items():
