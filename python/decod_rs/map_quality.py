@@ -185,7 +185,10 @@ def _moments(
     (n, 3, 3) of ``local`` (coordinates within the cell: no cancellation far from the
     origin)."""
     count = np.bincount(group, minlength=n).astype(np.float64)
-    sums = np.column_stack([np.bincount(group, weights=local[:, i], minlength=n) for i in range(3)])
+    sums = np.asarray(
+        np.column_stack([np.bincount(group, weights=local[:, i], minlength=n) for i in range(3)]),
+        dtype=np.float64,
+    )
     outer = np.empty((n, 3, 3))
     for i in range(3):
         for j in range(i, 3):
