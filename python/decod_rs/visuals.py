@@ -70,23 +70,32 @@ def write_visuals(
 
     # The renders one after the other (each is parallel in Rust and holds the processor's
     # lock), then the PLY files and the figures of both maps at once (numpy's large-array
-    # work releases the GIL).
-    clouds = {
-        name: render_map(processor, stamps, poses, matched.split)
-        for name, poses in trajectories.items()
-    }
+    # work releases the GIL). A trajectory no loop moved (--no-loops, or no loop accepted)
+    # places the map where the odometry does: one render and one figure serve both.
+    same = bool(np.array_equal(odometry, corrected))
+    clouds = {"odometry": render_map(processor, stamps, odometry, matched.split)}
+    clouds["corrected"] = (
+        clouds["odometry"] if same else render_map(processor, stamps, corrected, matched.split)
+    )
     section = _map_section(processor, clouds)
     if map:
         anchors = np.asarray(processor.map_submap_stamps(), dtype=np.float64)
         voxel = float(processor.map_voxel_m or 0.0)  # the map is kept: never None here
 
-        def finish(name: str) -> Consistency:
+        def finish(name: str) -> Consistency | None:
             write_map_ply(out / MAP_FILES[name], clouds[name], float(stamps[0]), name)
+            if same and name == "corrected":
+                return None
             poses = trajectories[name]
             return _consistency(anchors, clouds[name], stamps, poses, matched.split, voxel)
 
         with ThreadPoolExecutor(max_workers=2) as pool:
-            figures = dict(zip(trajectories, pool.map(finish, trajectories), strict=True))
+            done = dict(zip(trajectories, pool.map(finish, trajectories), strict=True))
+        figures: dict[str, Consistency] = {}
+        for name in trajectories:
+            figure = done[name] or done["odometry"]
+            if figure is not None:
+                figures[name] = figure
         section["files"] = dict(MAP_FILES)
         section["consistency"] = _consistency_section(figures)
         from decod_rs.plots import plot_map_consistency
