@@ -1,5 +1,7 @@
 """Issue 13: the corrected map (PLY), the map-consistency figure that needs no ground truth,
-and the rerun recording, on a short drifting simulated pipe (15 m out and back).
+and the rerun recording, on a short drifting simulated pipe (15 m out and back) and a short
+drifting tunnel (15 m, where the figure must see the passes' misalignment through the
+lining's seams and bolt pockets).
 
 What a user relies on: the PLY files open in a real reader (plyfile) with the fields and
 point counts the report states; the map is the pipe (its points lie on the true wall once
