@@ -252,12 +252,14 @@ def plot_map_consistency(path: str | Path, figures: Mapping[str, Consistency]) -
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("chainage along the outbound path [m]")
-    ax.set_ylabel("wall thickness (RMS about the section) [mm]")
+    ax.set_ylabel("wall thickness (RMS about local planes) [mm]")
     ax.set_title("map consistency without ground truth: the wall where the passes overlap")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
+    # zlib level 1 instead of 6: 0.095 instead of 0.113 s of CPU per figure (measured on a
+    # 60-bin figure), a PNG of about the same size (mostly flat colour).
+    fig.savefig(out, dpi=120, pil_kwargs={"compress_level": 1})
     plt.close(fig)
     return out

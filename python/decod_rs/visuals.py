@@ -38,6 +38,8 @@ __all__ = ["MAP_FILES", "write_visuals"]
 
 MAP_FILES = {"corrected": "map_corrected.ply", "odometry": "map_odometry.ply"}
 CONSISTENCY_PNG = "map_consistency.png"
+#: Pose entries (metres, rotation-matrix entries) closer than this are the same trajectory.
+SAME_POSE_ATOL = 1e-9
 
 
 class Matched(Protocol):
@@ -70,23 +72,35 @@ def write_visuals(
 
     # The renders one after the other (each is parallel in Rust and holds the processor's
     # lock), then the PLY files and the figures of both maps at once (numpy's large-array
-    # work releases the GIL).
-    clouds = {
-        name: render_map(processor, stamps, poses, matched.split)
-        for name, poses in trajectories.items()
-    }
+    # work releases the GIL). A trajectory no loop moved (--no-loops, or no loop accepted:
+    # the solver returns the odometry to within 1e-14) places the map where the odometry
+    # does, to far below the PLY's float precision: one render and one figure serve both.
+    same = odometry.shape == corrected.shape and bool(
+        np.allclose(odometry, corrected, rtol=0.0, atol=SAME_POSE_ATOL)
+    )
+    clouds = {"odometry": render_map(processor, stamps, odometry, matched.split)}
+    clouds["corrected"] = (
+        clouds["odometry"] if same else render_map(processor, stamps, corrected, matched.split)
+    )
     section = _map_section(processor, clouds)
     if map:
         anchors = np.asarray(processor.map_submap_stamps(), dtype=np.float64)
-        voxel = processor.map_voxel_m
+        voxel = float(processor.map_voxel_m or 0.0)  # the map is kept: never None here
 
-        def finish(name: str) -> Consistency:
+        def finish(name: str) -> Consistency | None:
             write_map_ply(out / MAP_FILES[name], clouds[name], float(stamps[0]), name)
+            if same and name == "corrected":
+                return None
             poses = trajectories[name]
             return _consistency(anchors, clouds[name], stamps, poses, matched.split, voxel)
 
         with ThreadPoolExecutor(max_workers=2) as pool:
-            figures = dict(zip(trajectories, pool.map(finish, trajectories), strict=True))
+            done = dict(zip(trajectories, pool.map(finish, trajectories), strict=True))
+        figures: dict[str, Consistency] = {}
+        for name in trajectories:
+            figure = done[name] or done["odometry"]
+            if figure is not None:
+                figures[name] = figure
         section["files"] = dict(MAP_FILES)
         section["consistency"] = _consistency_section(figures)
         from decod_rs.plots import plot_map_consistency
@@ -122,7 +136,7 @@ def _consistency(
     stamps: FloatArray,
     poses: FloatArray,
     split: float | None,
-    voxel_m: float | None,
+    voxel_m: float,
 ) -> Consistency:
     """The figure of one map; ``anchors``: the map's submap stamps (K,)."""
     positions = anchor_poses(anchors, stamps, poses)[:, :3, 3]
@@ -132,10 +146,10 @@ def _consistency(
 def _consistency_section(figures: dict[str, Consistency]) -> dict[str, Any]:
     """Before (odometry) and after (corrected), with what the number means."""
     section: dict[str, Any] = {
-        "what": "wall thickness where the outbound and return passes overlap: RMS of both "
-        "passes' radial residuals about their common cross-section, per metre of corridor "
-        "(the floors: each pass about its own section); lateral and angular misalignment "
-        "only, blind to the axial error of a uniform corridor",
+        "what": "wall thickness where the outbound and return passes overlap: RMS distance "
+        "of both passes' points from their common plane in cells of 3 map voxels (cell_m), "
+        "per metre of corridor (the floors: each pass about its own planes); misalignment "
+        "across the wall only, blind to the axial error of a uniform corridor",
         "unit": "mm",
     }
     for name, fig in figures.items():

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs import _core
+from decod_rs.bench.map_truth import wall_truth
 from decod_rs.config import load_config
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -54,10 +55,12 @@ class Case:
     length_m: float
     drift: float | str
     preset: str
+    sensor: str = "avia"
 
     @property
     def name(self) -> str:
-        return f"{self.scene}-s{self.seed}-{self.length_m:g}m-d{self.drift}"
+        sensor = "" if self.sensor == "avia" else f"-{self.sensor}"
+        return f"{self.scene}{sensor}-s{self.seed}-{self.length_m:g}m-d{self.drift}"
 
 
 CASES = [
@@ -67,6 +70,10 @@ CASES = [
     Case("hume", 4, 30.0, 3.0, "pipe"),
     Case("pe", 1, 30.0, 1.7, "pipe"),
     Case("shield", 1, 40.0, 1.7, "tunnel"),
+    Case("shield", 1, 40.0, 1.7, "auto"),
+    Case("shield", 2, 30.0, 5.0, "auto"),
+    Case("shield", 3, 30.0, 3.0, "auto", "spin16"),
+    Case("shield", 3, 15.0, 3.0, "tunnel", "spin16"),
 ]
 QUICK = CASES[:2]
 
@@ -78,6 +85,7 @@ def _sim(case: Case, root: Path) -> Path:
             case.scene,
             out,
             seed=case.seed,
+            sensor=case.sensor,
             length_m=case.length_m,
             drift=case.drift,
             progress=False,
@@ -141,6 +149,7 @@ def _one_run(case: Case, sim: Path, run: Path, loops: bool) -> dict[str, Any]:
     rest = sum(v for k, v in t.items() if k not in ("map", "rerun"))
     figure = report["map"]["consistency"]
     truth = _errors(sim, run)
+    wall = {name: wall_truth(sim, run, name) for name in ("odometry", "corrected")}
     return {
         "loops": loops,
         "accepted": report["counts"]["accepted"],
@@ -163,6 +172,7 @@ def _one_run(case: Case, sim: Path, run: Path, loops: bool) -> dict[str, Any]:
         },
         "floor_mm": figure["corrected"]["median_outbound_floor_mm"],
         "truth": truth,
+        "wall_truth": wall,
     }
 
 
@@ -184,10 +194,17 @@ def _tracking(rows: list[dict[str, Any]]) -> dict[str, Any]:
         for name in ("odometry", "corrected") if row["loops"] else ("corrected",):
             if row["thickness_mm"][name] is not None:
                 figures = (row["thickness_mm"][name], row["mean_thickness_mm"][name])
-                points.append((figures, row["truth"][name]))
+                wall = row["wall_truth"][name]["half_misalignment_median_mm"]
+                truth = {**row["truth"][name], "wall_half_misalignment_mm": wall}
+                points.append((figures, truth))
     out: dict[str, Any] = {"maps": len(points)}
     for k, figure in enumerate(("median", "mean")):
-        for key in ("rmse_m", "lateral_rmse_m", "pass_disagreement_m"):
+        for key in (
+            "rmse_m",
+            "lateral_rmse_m",
+            "pass_disagreement_m",
+            "wall_half_misalignment_mm",
+        ):
             values = [p[0][k] for p in points]
             out[f"{figure}_vs_{key}"] = _spearman(values, [p[1][key] for p in points])
     return out
@@ -196,10 +213,11 @@ def _tracking(rows: list[dict[str, Any]]) -> dict[str, Any]:
 def _markdown(rows: list[dict[str, Any]], tracking: dict[str, Any], extract: list[Any]) -> str:
     lines = [
         "| case | loops | accepted | thickness odom -> corr [mm] | floor [mm] | "
+        "true d/2 across the wall odom -> corr [mm] | r along the corridor odom, corr | "
         "RMSE odom -> corr [m] | lateral RMSE [m] | pass disagreement [m] | "
         "points (corr) | stored voxels | PLY [MB] | rrd [MB] | run [s] | map [s] | "
         "rerun [s] | overhead |",
-        "|" + " --- |" * 16,
+        "|" + " --- |" * 18,
     ]
     for r in rows:
         th, tr = r["thickness_mm"], r["truth"]
@@ -208,9 +226,15 @@ def _markdown(rows: list[dict[str, Any]], tracking: dict[str, Any], extract: lis
         def pair(key: str, t: dict[str, Any] = tr) -> str:
             return f"{t['odometry'][key]:.3f} -> {t['corrected'][key]:.3f}"
 
+        def wall(key: str, w: dict[str, Any] = r["wall_truth"], sep: str = " -> ") -> str:
+            v = [w[n][key] for n in ("odometry", "corrected")]
+            return sep.join("-" if x is None else f"{x:.2f}" for x in v)
+
         lines.append(
             f"| {r['case']} | {'yes' if r['loops'] else 'no'} | {r['accepted']} | "
-            f"{th['odometry']} -> {th['corrected']} | {r['floor_mm']} | {pair('rmse_m')} | "
+            f"{th['odometry']} -> {th['corrected']} | {r['floor_mm']} | "
+            f"{wall('half_misalignment_median_mm')} | {wall('along_corridor_r', sep=', ')} | "
+            f"{pair('rmse_m')} | "
             f"{pair('lateral_rmse_m')} | {pair('pass_disagreement_m')} | {pts} | "
             f"{r['stored_voxels']} | {r['ply_mb']['corrected']:.1f} | {r['rrd_mb']:.1f} | "
             f"{r['run_s']:.2f} | {r['map_s']:.2f} | {r['rerun_s']:.2f} | "
@@ -231,16 +255,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--quick", action="store_true", help=f"only {len(QUICK)} cases")
+    p.add_argument("--cases", help="comma-separated case indices into CASES")
+    p.add_argument("--no-extract", action="store_true", help="skip the stream timings")
     args = p.parse_args(argv)
     rows, extract = [], []
-    for case in QUICK if args.quick else CASES:
+    cases = QUICK if args.quick else CASES
+    if args.cases:
+        cases = [CASES[int(i)] for i in args.cases.split(",")]
+    for case in cases:
         sim = _sim(case, args.out)
         for loops in (True, False):
             run = args.out / "runs" / case.name / ("loops" if loops else "no_loops")
             rows.append({"case": case.name, **_one_run(case, sim, run, loops)})
             print(json.dumps(rows[-1]), flush=True)
-        on, off = _extract_seconds(sim / "log", case.preset)
-        extract.append((case.name, on, off))
+        if not args.no_extract:
+            on, off = _extract_seconds(sim / "log", case.preset)
+            extract.append((case.name, on, off))
     tracking = _tracking(rows)
     (args.out / "visuals.json").write_text(
         json.dumps({"runs": rows, "tracking": tracking, "extract_s": extract}, indent=2)
