@@ -3,6 +3,7 @@ corridor, Huber against a wrong loop, scan propagation, exports and TUM files.""
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import gtsam
@@ -18,7 +19,7 @@ from decod_rs.graph import (
     propagate_to_scans,
 )
 from decod_rs.graph_export import G2O_LANDMARK_TAG, write_g2o, write_graph_json
-from decod_rs.landmark_factor import landmark_residual
+from decod_rs.landmark_factor import axis_frame, landmark_residual
 from decod_rs.tum import read_tum, so3_exp, write_tum
 
 TUNNEL = decod_rs.load_config(preset="tunnel").graph
@@ -111,7 +112,15 @@ def test_factor_in_gtsam_uses_the_same_residual():
     graph, values = decod_rs.graph.build_graph(np.stack([ti, tj]), [lc], TUNNEL)
     factor = graph.at(graph.size() - 1)
     expected = landmark_residual(ti, tj, lc.query_origin, lc.query_axis, cj, lc.db_axis)[0]
+    # The graph applies the position sigmas along the query's axis and across it.
+    expected[:3] = axis_frame(lc.query_axis) @ expected[:3]
     np.testing.assert_allclose(factor.unwhitenedError(values), expected, atol=1e-12)
+    np.testing.assert_allclose(
+        np.linalg.norm(expected[:3]),
+        np.linalg.norm(
+            landmark_residual(ti, tj, lc.query_origin, lc.query_axis, cj, lc.db_axis)[0][:3]
+        ),
+    )
 
 
 def consistent_pair(rng):
@@ -305,3 +314,36 @@ def test_tum_round_trip_and_errors(tmp_path):
         read_tum(bad)
     with pytest.raises(FileNotFoundError):
         read_tum(tmp_path / "missing.tum")
+
+
+def _tilting_views(scale: float, bias_per_m: float) -> tuple[np.ndarray, list[LoopConstraint]]:
+    """A straight 40 m corridor along x (poses every 2 m, the odometry ``scale`` short) and
+    every boundary (every 1.5 m) seen from the anchors 2-10 m behind it, its origin placed
+    ``bias_per_m`` high per metre of distance (an axis estimate pitched that much)."""
+    xs = np.arange(0.0, 40.0, 2.0)
+    odom = np.repeat(np.eye(4)[None], xs.size, axis=0)
+    odom[:, 0, 3] = xs * (1.0 - scale)
+    axis = np.array([1.0, 0.0, 0.0])
+    loops = []
+    for b in np.arange(3.0, 40.0, 1.5):
+        seen = [k for k, x in enumerate(xs) if 2.0 <= b - x <= 10.0]
+        views = {k: np.array([b - xs[k], 0.0, bias_per_m * (b - xs[k])]) for k in seen}
+        for i, j in itertools.pairwise(seen):
+            loops.append(LoopConstraint(j, i, views[j], axis, views[i], axis, kind="sequential"))
+    return odom, loops
+
+
+def test_landmark_factors_do_not_tilt_the_trajectory_away_from_gravity() -> None:
+    # Views of a boundary from farther away placed it higher (1 cm per metre): chained
+    # along the pass, the factors say the corridor climbs. The odometry's gravity says it
+    # does not; with its roll and pitch held (graph.odom_attitude_sigma_rad) the corrected
+    # trajectory climbs a sixth as much, and the 3 % scale error is corrected either way.
+    odom, loops = _tilting_views(scale=0.03, bias_per_m=0.01)
+    free = optimize(odom, loops, with_(TUNNEL, odom_attitude_sigma_rad=1e3)).poses
+    held = optimize(odom, loops, TUNNEL).poses
+    climb_free, climb_held = np.max(np.abs(free[:, 2, 3])), np.max(np.abs(held[:, 2, 3]))
+    assert climb_free > 0.25, climb_free  # 0.33 m over 38 m
+    assert climb_held < 0.25 * climb_free, (climb_held, climb_free)  # 0.05 m
+    # The odometry says 36.9 m of the 38 m; the boundaries put the end within 0.25 m.
+    for poses in (free, held):
+        assert abs(poses[-1, 0, 3] - 38.0) < 0.25, poses[-1, 0, 3]

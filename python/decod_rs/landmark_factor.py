@@ -53,7 +53,18 @@ FloatArray = NDArray[np.float64]
 #: Residual layout: 3 position components (metres, frame k_i), then the axis term.
 RESIDUAL_DIM = 4
 
-__all__ = ["RESIDUAL_DIM", "landmark_factor", "landmark_residual", "skew"]
+__all__ = ["RESIDUAL_DIM", "axis_frame", "landmark_factor", "landmark_residual", "skew"]
+
+
+def axis_frame(axis: ArrayLike) -> FloatArray:
+    """(3, 3) rotation whose first row is the unit ``axis`` and whose other two rows span
+    the plane across it: a position residual ``r`` becomes ``[along, across, across]``."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e1 = np.cross(a, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([a, e1, np.cross(a, e1)])
 
 
 def skew(v: FloatArray) -> FloatArray:
@@ -112,10 +123,14 @@ def landmark_factor(
     c_j: ArrayLike,
     a_j: ArrayLike,
     noise: gtsam.noiseModel.Base,
+    frame: ArrayLike | None = None,
 ) -> gtsam.CustomFactor:
     """A ``gtsam.CustomFactor`` on the Pose3 variables ``key_i`` (query) and ``key_j``
     (database) with the residual of ``landmark_residual`` and a 4-dimensional ``noise``
-    model (the graph uses a Huber-robust diagonal one)."""
+    model (the graph uses a Huber-robust diagonal one). ``frame`` (3, 3): a rotation applied
+    to the position residual and its Jacobian rows before the noise model (the graph passes
+    :func:`axis_frame` of ``a_i``, so the sigmas are along the corridor and across it)."""
+    rot = np.eye(3) if frame is None else np.asarray(frame, dtype=np.float64).copy()
     ci = np.asarray(c_i, dtype=np.float64).copy()
     ai = np.asarray(a_i, dtype=np.float64).copy()
     cj = np.asarray(c_j, dtype=np.float64).copy()
@@ -126,7 +141,10 @@ def landmark_factor(
         ti = values.atPose3(keys[0]).matrix()
         tj = values.atPose3(keys[1]).matrix()
         res, hi, hj = landmark_residual(ti, tj, ci, ai, cj, aj, jacobians=h is not None)
-        if h is not None:
+        res[:3] = rot @ res[:3]
+        if h is not None and hi is not None and hj is not None:
+            hi[:3] = rot @ hi[:3]
+            hj[:3] = rot @ hj[:3]
             h[0] = hi
             h[1] = hj
         return res

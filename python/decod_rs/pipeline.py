@@ -49,7 +49,12 @@ from decod_rs.run_files import (
     write_loops_csv,
 )
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
-from decod_rs.sequential import SequentialFactors, same_boundary, sequential_constraints
+from decod_rs.sequential import (
+    SequentialFactors,
+    same_boundary,
+    sequential_constraints,
+    transverse_noise_m,
+)
 from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
 from decod_rs.tracks import group_views
 from decod_rs.tum import interpolate_poses, write_tum
@@ -378,14 +383,21 @@ def _factors(
     cfg: Config,
     scans: tuple[FloatArray, FloatArray],
 ) -> tuple[list[LoopConstraint], SequentialFactors | None]:
-    """Loop factors of the kept loops, then the sequential factors of the tracks."""
+    """Loop factors of the kept loops, then the sequential factors of the tracks; across the
+    axis, every factor takes the spread measured on the tracks (:mod:`decod_rs.sequential`)."""
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
-    constraints = _constraints(matched.results, matched.keep, anchor_stamps)
+    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
+    across = transverse_noise_m(
+        ex.landmarks, matched.tracks, anchors, float(cfg.graph.landmark_position_sigma_m)
+    )
+    constraints = [
+        replace(c, sigma_transverse_m=across)
+        for c in _constraints(matched.results, matched.keep, anchor_stamps)
+    ]
     if not cfg.graph.sequential:
         return constraints, None
-    anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
     seq = sequential_constraints(
-        ex.landmarks, matched.tracks, anchors, anchor_stamps, path_along(*scans), cfg
+        ex.landmarks, matched.tracks, anchors, anchor_stamps, path_along(*scans), cfg, across
     )
     return constraints + seq.constraints, seq
 
