@@ -16,6 +16,24 @@ use faer::Mat;
 /// triple per row and column branched on every entry and cost three times the division pass
 /// (perf, `retrieval` bench); it is kept as the reference in the tests.
 pub fn mutual_nearest(dist: &Mat<f32>) -> Vec<(usize, usize)> {
+    pulp::Arch::new().dispatch(MutualNearest(dist))
+}
+
+/// [`mutual_nearest`] compiled for the CPU's best instruction set ([`pulp`] dispatch):
+/// comparisons and selects only, so the same result on every instruction set.
+struct MutualNearest<'a>(&'a Mat<f32>);
+
+impl pulp::WithSimd for MutualNearest<'_> {
+    type Output = Vec<(usize, usize)>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Self::Output {
+        mutual_nearest_body(self.0)
+    }
+}
+
+#[inline(always)]
+fn mutual_nearest_body(dist: &Mat<f32>) -> Vec<(usize, usize)> {
     let (ni, nj) = (dist.nrows(), dist.ncols());
     let mut row_min = vec![f32::INFINITY; ni];
     for j in 0..nj {
