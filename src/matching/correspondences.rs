@@ -45,7 +45,12 @@ fn mutual_nearest_body(dist: &Mat<f32>) -> Vec<(usize, usize)> {
     let (mut row_count, mut row_arg) = (vec![0u32; ni], vec![0u32; ni]);
     for j in 0..nj {
         let col = dist.col_as_slice(j);
-        for (((c, a), &d), &m) in row_count.iter_mut().zip(&mut row_arg).zip(col).zip(&row_min) {
+        for (((c, a), &d), &m) in row_count
+            .iter_mut()
+            .zip(&mut row_arg)
+            .zip(col)
+            .zip(&row_min)
+        {
             *c += u32::from(d == m);
             *a = if d == m { j as u32 } else { *a };
         }

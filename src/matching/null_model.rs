@@ -270,7 +270,12 @@ mod tests {
         let mut rng = crate::matching::synthetic::Rng::new(9);
         let mut kps = |n: usize, rng: &mut crate::matching::synthetic::Rng| -> Vec<Keypoint> {
             (0..n)
-                .map(|_| kp((rng.uniform() * 16.0) as usize, (rng.uniform() * 256.0) as usize))
+                .map(|_| {
+                    kp(
+                        (rng.uniform() * 16.0) as usize,
+                        (rng.uniform() * 256.0) as usize,
+                    )
+                })
                 .collect()
         };
         for trial in 0..40 {
