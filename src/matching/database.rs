@@ -356,23 +356,16 @@ impl LandmarkDatabase {
         if !coarse {
             return (eligible.clone(), eligible);
         }
-        let ranked_length = RANKED_PER_SHORT_LISTED * cfg.retrieval_short_list;
-        let ranked = if std::ptr::eq(entries, self.entries.as_slice()) {
+        let short = if std::ptr::eq(entries, self.entries.as_slice()) {
             self.coarse
-                .short_list(&q.coarse, &eligible, ranked_length, parallel)
+                .short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
         } else {
             let mut index = CoarseIndex::default();
             entries
                 .iter()
                 .for_each(|e| index.push(e.coarse.first().map_or(&[][..], |v| &v[..])));
-            index.short_list(&q.coarse, &eligible, ranked_length, parallel)
+            index.short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
         };
-        let short = spread_over_boundaries(
-            &ranked,
-            &self.boundaries,
-            cfg.retrieval_short_list,
-            VIEWS_PER_BOUNDARY,
-        );
         (short, eligible)
     }
 
@@ -427,44 +420,6 @@ impl LandmarkDatabase {
         }
         Ok(result)
     }
-}
-
-/// At most this many views of one physical boundary enter the short list (the best by the
-/// coarse stage), so that the exact matcher also sees the boundaries that compete with the
-/// best one: the uniqueness test needs its runner-up. A tunnel survey holds about ten views
-/// per ring seam or arch, and a plain top-32 of the simulated shield and horseshoe surveys
-/// was filled with a few boundaries' views: against the exhaustive matcher it kept the Top-1
-/// but not the runner-up, and accepted 68 queries instead of 33 (shield) and 614 instead of
-/// 377 (horseshoe), every extra one a `not_unique` rejection of the exhaustive matcher.
-pub const VIEWS_PER_BOUNDARY: usize = 4;
-
-/// The coarse stage ranks this many candidates per short-list place, from which
-/// [`spread_over_boundaries`] picks the short list.
-const RANKED_PER_SHORT_LISTED: usize = 4;
-
-/// The first `length` of `ranked` (best first) taking at most `per_boundary` views of one
-/// boundary, then, if fewer, the best of the rest.
-fn spread_over_boundaries(
-    ranked: &[usize],
-    boundaries: &[u64],
-    length: usize,
-    per_boundary: usize,
-) -> Vec<usize> {
-    let mut taken: std::collections::HashMap<u64, usize> = std::collections::HashMap::new();
-    let (mut short, mut rest) = (Vec::with_capacity(length), Vec::new());
-    for &k in ranked {
-        let boundary = boundaries.get(k).copied().unwrap_or(u64::MAX - k as u64);
-        let count = taken.entry(boundary).or_insert(0);
-        if short.len() < length && *count < per_boundary {
-            *count += 1;
-            short.push(k);
-        } else {
-            rest.push(k);
-        }
-    }
-    let missing = length.saturating_sub(short.len());
-    short.extend(rest.into_iter().take(missing));
-    short
 }
 
 /// Number of distinct physical boundaries among `indices` (the null model's family: every
