@@ -268,7 +268,7 @@ mod tests {
         // And the pair p-value over many random keypoint sets (memoised box counts).
         let cfg = DecodConfig::tunnel().matching;
         let mut rng = crate::matching::synthetic::Rng::new(9);
-        let mut kps = |n: usize, rng: &mut crate::matching::synthetic::Rng| -> Vec<Keypoint> {
+        let kps = |n: usize, rng: &mut crate::matching::synthetic::Rng| -> Vec<Keypoint> {
             (0..n)
                 .map(|_| {
                     kp(
@@ -307,7 +307,7 @@ mod tests {
             cfg.max_shift_z_cells as isize,
             cfg.max_shift_p_cells as isize,
         );
-        let (ez, ep) = (mz + tz, (mp + tp).min(cols as isize / 2));
+        let ep = (mp + tp).min(cols as isize / 2);
         let mut sum = 0.0;
         let mut largest: f64 = 0.0;
         for hz in -mz..=mz {
