@@ -140,14 +140,29 @@ def test_changed_joints_rank_first(runs: dict[str, Path]) -> None:
     # ridges) are not what the simulator changed: rank the joints.
     joints = [t for t in truth if t is not None]
     assert len(set(joints)) >= 8, joints
-    # Each change has a joint among the first three, and the most changed joint is a
-    # changed one.
-    top = set(joints[: len(groups)])
+    changed = set().union(*groups)
+    # The joints judged on views of both sides of the boundary come first; every changed one
+    # among them ranks before every unchanged joint.
+    judged = [
+        t for t, r in zip(truth, rows, strict=True) if t is not None and r["two_sided"] == "1"
+    ]
+    judged_changed = [j for j in judged if j in changed]
+    assert judged[: len(judged_changed)] == judged_changed, (judged, changed)
+    # Each change is among them (the displaced segment by at least one of its joints) ...
     for group in groups:
-        assert top & group, (group, joints)
+        assert group & set(judged_changed), (group, judged)
+    # ... and a changed joint missing there was seen from one side only: flagged, and listed
+    # after every two-sided joint, not ranked as unchanged. (In this world the displaced
+    # segment's second joint: the new run's one compared view of it holds 8 of its 1,476
+    # compared cells on the displaced side.)
+    one_sided = [t for t, r in zip(truth, rows, strict=True) if r["two_sided"] == "0"]
+    assert changed - set(judged_changed) <= set(one_sided), (changed, judged, one_sided)
+    flags = [r["two_sided"] for r in rows]
+    assert flags == sorted(flags, reverse=True), flags
     assert (runs["again"] / "changes.png").stat().st_size > 10_000
-    values = [float(r["change"]) for r in rows]
-    assert values == sorted(values, reverse=True)
+    for flag in ("1", "0"):
+        values = [float(r["change"]) for r in rows if r["two_sided"] == flag]
+        assert values == sorted(values, reverse=True)
 
 
 def _defaults() -> dict[str, object]:

@@ -394,7 +394,7 @@ impl LandmarkDatabase {
                     .collect::<Result<Vec<_>>>()?;
                 (&reprepared, shape)
             };
-        let q = PreparedLandmark::new(Arc::new(query.clone()), cfg, &shape)?;
+        let q = PreparedLandmark::new_query(Arc::new(query.clone()), cfg, &shape)?;
         let side = QuerySide::new(&q, &shape);
         let (compared, eligible) = self.candidates(&q, entries, cfg, parallel, eligibility);
         let work = |&index: &usize| {

@@ -228,24 +228,33 @@ pub fn quantise(signature: &[f32]) -> (Vec<i8>, f32) {
     (q, scale)
 }
 
-/// Integer dot product of two `i8` vectors (16 lanes of `i16` products summed in `i32`, which
-/// the compiler turns into packed multiply-adds).
-#[inline]
+/// Integer dot product of two `i8` vectors: pairs of `i16` products summed into 16 `i32`
+/// lanes, the pattern the compiler turns into packed multiply-adds (`pmaddwd`; AVX2 or
+/// AVX-512 under [`pulp`] dispatch, see [`CoarseIndex::short_list`]). Exact: at most
+/// `dim * 127^2` per lane.
+#[inline(always)]
 fn dot_i8(a: &[i8], b: &[i8]) -> i32 {
     let mut acc = [0i32; 16];
-    let (ca, cb) = (a.chunks_exact(16), b.chunks_exact(16));
-    let tail: i32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| i32::from(*x) * i32::from(*y))
-        .sum();
-    for (x, y) in ca.zip(cb) {
+    let n = a.len().min(b.len());
+    let whole = n - n % 32;
+    let (ca, cb) = (&a[..whole], &b[..whole]);
+    let mut start = 0;
+    while start < whole {
+        let (x, y) = (&ca[start..start + 32], &cb[start..start + 32]);
         for k in 0..16 {
-            acc[k] += i32::from(i16::from(x[k]) * i16::from(y[k]));
+            acc[k] += i32::from(x[2 * k]) * i32::from(y[2 * k])
+                + i32::from(x[2 * k + 1]) * i32::from(y[2 * k + 1]);
         }
+        start += 32;
     }
-    acc.iter().sum::<i32>() + tail
+    let mut total = 0;
+    for k in 0..16 {
+        total += acc[k];
+    }
+    for k in whole..n {
+        total += i32::from(a[k]) * i32::from(b[k]);
+    }
+    total
 }
 
 /// A query's signatures quantised for the scan ([`quantise`]).
@@ -262,14 +271,16 @@ impl QuantisedQuery {
         }
     }
 
-    /// Similarity to one quantised row: the best over the query's signatures.
-    #[inline]
+    /// Similarity to one quantised row: the best over the query's signatures (plain loops,
+    /// inlined into the dispatched scan: an iterator fold there was compiled out of line for
+    /// baseline x86-64).
+    #[inline(always)]
     fn similarity(&self, row: &[i8], scale: f32) -> f32 {
-        self.signatures
-            .iter()
-            .map(|(q, s)| dot_i8(q, row) as f32 * s)
-            .fold(f32::NEG_INFINITY, f32::max)
-            * scale
+        let mut best = f32::NEG_INFINITY;
+        for (q, s) in &self.signatures {
+            best = f32::max(best, dot_i8(q, row) as f32 * s);
+        }
+        best * scale
     }
 }
 
@@ -321,6 +332,7 @@ impl CoarseIndex {
         self.similarity_quantised(&QuantisedQuery::new(query), k)
     }
 
+    #[inline(always)]
     fn similarity_quantised(&self, query: &QuantisedQuery, k: usize) -> f32 {
         match (
             self.values.get(k * self.dim..(k + 1) * self.dim),
@@ -342,11 +354,17 @@ impl CoarseIndex {
     ) -> Vec<usize> {
         use rayon::prelude::*;
         let quantised = QuantisedQuery::new(query);
-        let score = |&k: &usize| (self.similarity_quantised(&quantised, k), k);
+        let scan = |chunk: &[usize]| {
+            pulp::Arch::new().dispatch(Scan {
+                index: self,
+                query: &quantised,
+                indices: chunk,
+            })
+        };
         let mut scored: Vec<(f32, usize)> = if parallel {
-            indices.par_iter().with_min_len(1024).map(score).collect()
+            indices.par_chunks(1024).flat_map_iter(scan).collect()
         } else {
-            indices.iter().map(score).collect()
+            scan(indices)
         };
         let length = length.min(scored.len());
         if length == 0 {
@@ -359,6 +377,29 @@ impl CoarseIndex {
         }
         scored.sort_unstable_by(order);
         scored.into_iter().map(|(_, k)| k).collect()
+    }
+}
+
+/// The coarse scores of some rows of an index, compiled for the best instruction set the
+/// CPU has ([`pulp::Arch::dispatch`]): the integer dot products vectorise 2-4x wider than
+/// on baseline x86-64. Scores are exact integers scaled as in [`QuantisedQuery`], so every
+/// instruction set ranks identically.
+struct Scan<'a> {
+    index: &'a CoarseIndex,
+    query: &'a QuantisedQuery,
+    indices: &'a [usize],
+}
+
+impl pulp::WithSimd for Scan<'_> {
+    type Output = Vec<(f32, usize)>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Self::Output {
+        let mut out = Vec::with_capacity(self.indices.len());
+        for &k in self.indices {
+            out.push((self.index.similarity_quantised(self.query, k), k));
+        }
+        out
     }
 }
 
