@@ -15,9 +15,10 @@ import json
 import time
 
 import numpy as np
-from decod_rs.sim import Simulation
 from kiss_icp.config import KISSConfig
 from kiss_icp.kiss_icp import KissICP
+
+from decod_rs.sim import Simulation
 
 # Voxel sizes: KISS-ICP's default rule (max range / 100) with a range that suits the scale.
 SETTINGS = {
