@@ -47,6 +47,7 @@ __all__ = [
     "Selection",
     "effective_db_origin",
     "path_along",
+    "select_by_config",
     "select_consistent",
     "select_loops",
     "why_no_loop",
@@ -163,6 +164,17 @@ def path_along(scan_stamps: FloatArray, scan_odom: FloatArray) -> Callable[[floa
     return lambda stamp: float(np.interp(stamp, scan_stamps, path))
 
 
+def select_by_config(loops: list[LoopEvidence], matching: Any) -> Selection:
+    """:func:`select_consistent` with the tolerances of the ``matching`` config section."""
+    return select_consistent(
+        loops,
+        tolerance_m=float(matching.consistency_tolerance_m),
+        drift_fraction=float(matching.consistency_drift_fraction),
+        window_m=float(matching.consistency_window_m),
+        min_corroborating=int(matching.min_corroborating_loops),
+    )
+
+
 def select_loops(
     results: list[QueryResult],
     anchors: dict[float, FloatArray],
@@ -195,13 +207,7 @@ def select_loops(
         )
         for r in (results[k] for k in accepted)
     ]
-    chosen = select_consistent(
-        evidence,
-        tolerance_m=float(matching.consistency_tolerance_m),
-        drift_fraction=float(matching.consistency_drift_fraction),
-        window_m=float(matching.consistency_window_m),
-        min_corroborating=int(matching.min_corroborating_loops),
-    )
+    chosen = select_by_config(evidence, matching)
     keep = [False] * len(results)
     reasons = [r.rejection or "" for r in results]
     for k, ok, why in zip(accepted, chosen.kept, chosen.reasons, strict=True):

@@ -44,7 +44,7 @@ from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
 from decod_rs.landmark_factor import landmark_factor
 from decod_rs.matching import LandmarkDatabase
-from decod_rs.selection import LoopEvidence, effective_db_origin, select_consistent
+from decod_rs.selection import LoopEvidence, effective_db_origin, select_by_config
 from decod_rs.tum import interpolate_poses
 
 FloatArray = NDArray[np.float64]
@@ -285,13 +285,7 @@ def _select(
         )
         for p, s in zip(pairs, survey_along, strict=True)
     ]
-    chosen = select_consistent(
-        evidence,
-        tolerance_m=float(matching.consistency_tolerance_m),
-        drift_fraction=float(matching.consistency_drift_fraction),
-        window_m=float(matching.consistency_window_m),
-        min_corroborating=int(matching.min_corroborating_loops),
-    )
+    chosen = select_by_config(evidence, matching)
     for p, ok, why, rot_ok in zip(pairs, chosen.kept, chosen.reasons, agree, strict=True):
         keep[p.index] = ok and rot_ok
         reasons[p.index] = why if rot_ok else "inconsistent"
