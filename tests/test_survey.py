@@ -20,7 +20,7 @@ from decod_rs.pipeline import run_log
 from decod_rs.run_files import read_loops_csv
 from decod_rs.sim import simulate
 from decod_rs.sim.changes import changed_joints
-from decod_rs.survey import SURVEY_FILE, load_survey
+from decod_rs.survey import SURVEY_FILE, load_survey, survey_origins
 
 LENGTH_M = 30.0
 WORLD = 21
@@ -212,7 +212,7 @@ def test_short_list_holds_the_exhaustive_top1(runs: dict[str, Path]) -> None:
     again = load_survey(runs["again"])
     cfg = json.loads(json.dumps(survey.config["matching"]))
     db = LandmarkDatabase(cfg)
-    db.extend(survey.landmarks, [int(j) for j in survey.joint_ids])
+    db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], survey_origins(survey))
     exhaustive = db.query_batch(
         again.landmarks, {**cfg, "retrieval": "exhaustive"}, cross_session=True
     )

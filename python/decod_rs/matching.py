@@ -21,6 +21,9 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from decod_rs import _core
 from decod_rs._core import Landmark, PairResult, QueryResult
 from decod_rs.config import Config, load_config
@@ -110,30 +113,64 @@ class LandmarkDatabase:
     def _json(self, config: MatchingConfigLike) -> str:
         return self._config if config is None else matching_config_json(config)
 
-    def add(self, landmark: Landmark, boundary: int | None = None) -> int:
+    def add(
+        self,
+        landmark: Landmark,
+        boundary: int | None = None,
+        position: ArrayLike | None = None,
+    ) -> int:
         """Prepare and store ``landmark``; returns its index. ``boundary``: the id of the
         physical boundary it views (views sharing an id are one candidate: never each
-        other's runner-up); None = a boundary of its own."""
+        other's runner-up); None = a boundary of its own. ``position``: where the boundary
+        lies (3,) in a frame shared by the database (see :meth:`set_positions`)."""
         if boundary is None:
-            return self._db.add(landmark)
-        return self._db.add_view(landmark, int(boundary))
+            index = self._db.add(landmark)
+        else:
+            index = self._db.add_view(landmark, int(boundary))
+        if position is not None:
+            self.set_positions([index], np.asarray(position, dtype=np.float64).reshape(1, 3))
+        return index
 
     def extend(
-        self, landmarks: Iterable[Landmark], boundaries: Iterable[int] | None = None
+        self,
+        landmarks: Iterable[Landmark],
+        boundaries: Iterable[int] | None = None,
+        positions: ArrayLike | None = None,
     ) -> list[int]:
         """Prepare (in parallel) and store ``landmarks``; returns their indices.
-        ``boundaries``: one physical boundary id per landmark (see :meth:`add`)."""
+        ``boundaries``: one physical boundary id per landmark (see :meth:`add`);
+        ``positions``: (N, 3) where each boundary lies (see :meth:`set_positions`)."""
         items = list(landmarks)
+        placed = None if positions is None else np.asarray(positions, dtype=np.float64)
+        if placed is not None and placed.shape != (len(items), 3):
+            raise ValueError(f"positions: shape {placed.shape} for {len(items)} landmarks")
         if boundaries is None:
-            return self._db.extend(items)
-        ids = [int(b) for b in boundaries]
-        if len(ids) != len(items):
-            raise ValueError(f"boundaries: {len(ids)} ids for {len(items)} landmarks")
-        return self._db.extend_views(items, ids)
+            indices = self._db.extend(items)
+        else:
+            ids = [int(b) for b in boundaries]
+            if len(ids) != len(items):
+                raise ValueError(f"boundaries: {len(ids)} ids for {len(items)} landmarks")
+            indices = self._db.extend_views(items, ids)
+        if placed is not None:
+            self.set_positions(indices, placed)
+        return indices
 
     def boundaries(self) -> list[int]:
         """The physical boundary id of every stored view."""
         return self._db.boundaries()
+
+    def set_positions(self, indices: Sequence[int], positions: ArrayLike) -> None:
+        """Place stored views: ``positions`` (k, 3), the boundary origins of ``indices`` in
+        one frame shared by the whole database (a run's odometry, a survey's corrected
+        frame). The coarse short list is then widened by the eligible views within a
+        descriptor's extent of a listed one (``matching.retrieval_neighbour_extents``), so
+        the neighbouring ring that competes with the best is tested for uniqueness."""
+        array = np.ascontiguousarray(positions, dtype=np.float64)
+        self._db.set_positions([int(i) for i in indices], array)
+
+    def positions(self) -> NDArray[np.float64]:
+        """(n, 3) each stored view's position, NaN where none was set."""
+        return self._db.positions()
 
     def query(self, query: Landmark, config: MatchingConfigLike = None) -> QueryResult:
         """The best eligible candidate for ``query`` (database config unless given)."""

@@ -56,7 +56,7 @@ from decod_rs.sequential import (
     transverse_noise_m,
 )
 from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
-from decod_rs.tracks import group_views
+from decod_rs.tracks import group_views, world_origins
 from decod_rs.tum import interpolate_poses, write_tum
 
 FloatArray = NDArray[np.float64]
@@ -153,13 +153,14 @@ def _split_stamp(stamps: FloatArray, poses: FloatArray) -> float | None:
 def _match(
     landmarks: list[Landmark],
     tracks: NDArray[np.int64],
+    where: FloatArray,
     cfg: Config,
     mode: str,
     split: float | None,
 ) -> tuple[list[QueryResult], str, list[int]]:
     """Queries and their top-1 results, the mode used, and the landmark behind each
     database index. Every view goes into the database under its track (physical boundary)
-    id."""
+    id, placed at ``where`` (N, 3), its origin in the odometry frame."""
     db = LandmarkDatabase(cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
@@ -169,14 +170,18 @@ def _match(
                 "--mode batch: the trajectory has no return leg to query with (use --mode online)"
             )
         outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
-        db.extend([landmarks[k] for k in outbound], [int(tracks[k]) for k in outbound])
+        db.extend(
+            [landmarks[k] for k in outbound],
+            [int(tracks[k]) for k in outbound],
+            where[outbound].reshape(-1, 3),
+        )
         queries = [lm for lm in landmarks if lm.submap_stamp > split]
         return db.query_batch(queries), mode, outbound
     results = []
     order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
     for k in order:
         results.append(db.query(landmarks[k]))
-        db.add(landmarks[k], int(tracks[k]))
+        db.add(landmarks[k], int(tracks[k]), where[k])
     return results, mode, order
 
 
@@ -345,7 +350,8 @@ def _match_and_select(
         float(m.min_time_separation_s),
         same_boundary(ex.landmarks, m),
     )
-    results, used_mode, db_order = _match(ex.landmarks, tracks, cfg, mode, split)
+    where = world_origins(ex.landmarks, anchors)
+    results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split)
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)
     return _Matched(split, tracks, results, used_mode, db_order, keep, reasons)
 

@@ -357,6 +357,15 @@ def _graph(
     return np.stack([result.atPose3(k).matrix() for k in range(n)])
 
 
+def survey_origins(survey: Survey) -> FloatArray:
+    """(L, 3) the survey's boundary origins in its corrected frame."""
+    out = np.empty((len(survey.landmarks), 3))
+    for k, lm in enumerate(survey.landmarks):
+        pose = survey.anchor_pose(lm.submap_stamp)
+        out[k] = pose[:3, :3] @ np.asarray(lm.origin) + pose[:3, 3]
+    return out
+
+
 def cross_session(
     survey: Survey,
     landmarks: list[Landmark],
@@ -368,7 +377,7 @@ def cross_session(
     ``anchors``: the run's anchor stamp -> odometry pose (the frame pairs are judged in);
     ``along``: path length along the run's odometry at a stamp."""
     db = LandmarkDatabase(cfg)
-    db.extend(survey.landmarks, [int(j) for j in survey.joint_ids])
+    db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], survey_origins(survey))
     results = db.query_batch(landmarks, cross_session=True) if landmarks else []
     pairs = _pairs(survey, landmarks, results, anchors)
     keep, reasons, align = _select(survey, results, pairs, along, cfg.matching)

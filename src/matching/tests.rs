@@ -282,13 +282,19 @@ fn gemm_patch_distances_agree_with_brute_force() {
 #[test]
 fn database_round_trips_and_rejects_other_versions() {
     let mut rng = Rng::new(14);
-    let db = corridor(&[50, 51, 52], &mut rng);
+    let mut db = corridor(&[50, 51, 52], &mut rng);
+    // Two of the three placed; the third stays unplaced through the round trip.
+    db.set_positions(&[0, 2], &[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+        .unwrap();
     let dir = std::env::temp_dir().join(format!("decod-db-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("db.json");
     db.save(&path).unwrap();
     let back = LandmarkDatabase::load(&path, None).unwrap();
     assert_eq!(back.len(), 3);
+    assert_eq!(back.positions()[0], [1.0, 2.0, 3.0]);
+    assert_eq!(back.positions()[2], [4.0, 5.0, 6.0]);
+    assert!(back.positions()[1].iter().all(|v| v.is_nan()));
     let q = joint(3, 51).observe(
         &Observation::random(&Grid::tunnel(), 900.0, true, &mut rng),
         5,
@@ -581,4 +587,71 @@ fn coarse_short_list_keeps_the_exhaustive_top1() {
         assert!(kept as f64 >= 0.99 * verified as f64, "{kept}/{verified}");
         assert!(acc_c + 1 >= acc_e, "{acc_c} vs {acc_e}");
     }
+}
+
+#[test]
+fn short_list_is_widened_by_the_boundaries_beside_its_best() {
+    // Forty distinct joints 10 m apart and a twin of joint 7 (the same surface: a ring
+    // that shares its wall with the next) 1 m beside it. A short list of one holds only one
+    // of the two; the uniqueness test must still see the other, as the exhaustive matcher
+    // does, once the database knows where its boundaries lie.
+    let grid = Grid::tunnel();
+    let mut rng = Rng::new(23);
+    let surface = |id: u64| JointSurface::new(grid, SurfaceParams::for_grid(&grid), 4, id);
+    let mut landmarks: Vec<Landmark> = (0..40)
+        .map(|k| surface(k).observe(&Observation::random(&grid, k as f64, false, &mut rng), k))
+        .collect();
+    landmarks.push(surface(7).observe(&Observation::random(&grid, 40.0, false, &mut rng), 40));
+    let extent = grid.rows as f64 * grid.cell_z_m;
+    let at = |twin_offset: f64| -> Vec<[f64; 3]> {
+        (0..40)
+            .map(|k| [10.0 * k as f64, 0.0, 0.0])
+            .chain([[70.0 + twin_offset, 0.0, 0.0]])
+            .collect()
+    };
+    let c = MatchingConfig {
+        min_inliers: 9,
+        retrieval: "coarse".into(),
+        retrieval_min_candidates: 0,
+        retrieval_short_list: 1,
+        ..cfg()
+    };
+    let exhaustive = MatchingConfig {
+        retrieval: "exhaustive".into(),
+        ..c.clone()
+    };
+    let query = surface(7).observe(&Observation::random(&grid, 1e5, true, &mut rng), 99);
+    let twins = [7, 40];
+    let mut db = LandmarkDatabase::new(&c);
+    db.extend(landmarks).unwrap();
+    let e = db.query(&query, &exhaustive).unwrap();
+    assert_eq!(e.rejection, Some(Rejection::NotUnique), "{e:?}");
+    // Unplaced: the short list of one never compares the twin.
+    let r = db.query(&query, &c).unwrap();
+    assert!(twins.contains(&r.candidate_index.unwrap()), "{r:?}");
+    assert!(
+        r.runner_up_index.is_none_or(|i| !twins.contains(&i)),
+        "{r:?}"
+    );
+    // Placed, the twin 1 m away (within half an extent, 2.4 m): compared, and rejected as the
+    // exhaustive matcher does.
+    let all: Vec<usize> = (0..db.len()).collect();
+    db.set_positions(&all, &at(1.0)).unwrap();
+    let r = db.query(&query, &c).unwrap();
+    assert_eq!(r.rejection, Some(Rejection::NotUnique), "{r:?}");
+    assert!(
+        r.runner_up_index.is_some_and(|i| twins.contains(&i)),
+        "{r:?}"
+    );
+    // Placed 1.5 extents away: the signature speaks for it (not widened).
+    db.set_positions(&all, &at(1.5 * extent)).unwrap();
+    let r = db.query(&query, &c).unwrap();
+    assert!(
+        r.runner_up_index.is_none_or(|i| !twins.contains(&i)),
+        "{r:?}"
+    );
+    // Positions are checked.
+    assert!(db.set_positions(&[0], &[[f64::NAN, 0.0, 0.0]]).is_err());
+    assert!(db.set_positions(&[41], &[[0.0; 3]]).is_err());
+    assert!(db.set_positions(&[0, 1], &[[0.0; 3]]).is_err());
 }

@@ -6,10 +6,10 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use numpy::{PyArray1, PyArray2};
+use numpy::{PyArray1, PyArray2, PyReadonlyArray2};
 use pyo3::prelude::*;
 
-use super::arrays::flat_to_numpy;
+use super::arrays::{flat_to_numpy, points_n3, rows_to_numpy};
 use super::detached;
 use super::errors::to_py_err;
 use super::landmark::PyLandmark;
@@ -326,6 +326,19 @@ impl PyLandmarkDatabase {
     /// The physical boundary id of every entry.
     fn boundaries(&self) -> Vec<u64> {
         self.inner.boundaries().to_vec()
+    }
+    /// Places entries `indices` at `positions` (k, 3) in the database's frame.
+    fn set_positions(
+        &mut self,
+        indices: Vec<usize>,
+        positions: PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<()> {
+        let rows = points_n3(&positions, "positions")?;
+        self.inner.set_positions(&indices, &rows).map_err(to_py_err)
+    }
+    /// Each entry's position (n, 3), NaN where none was set.
+    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        rows_to_numpy(py, self.inner.positions())
     }
     /// Prepares (in parallel) and stores landmarks; returns their indices.
     fn extend(
