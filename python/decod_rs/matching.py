@@ -92,6 +92,26 @@ def synthetic_landmark(
     )
 
 
+class PairMemo:
+    """:func:`compare_pairs` over one list of landmarks under one config, each (query,
+    candidate) pair compared once: a run links tracks with the matcher, then builds the
+    sequential factors from the same pairs in every optimisation round."""
+
+    def __init__(self, landmarks: Sequence[Landmark], config: MatchingConfigLike = None) -> None:
+        self._landmarks = list(landmarks)
+        self._config = matching_config_json(config)
+        self._done: dict[tuple[int, int], PairResult] = {}
+
+    def compare(self, pairs: Sequence[tuple[int, int]]) -> list[PairResult]:
+        """Results in the order of ``pairs`` (see :func:`compare_pairs`)."""
+        keys = [(int(i), int(j)) for i, j in pairs]
+        missing = [k for k in dict.fromkeys(keys) if k not in self._done]
+        if missing:
+            found = _core.compare_pairs(self._landmarks, missing, self._config)
+            self._done.update(zip(missing, found, strict=True))
+        return [self._done[k] for k in keys]
+
+
 class LandmarkDatabase:
     """Landmarks prepared once on insertion; queried with eligibility, both headings, rayon.
 
@@ -218,6 +238,7 @@ class LandmarkDatabase:
 
 __all__ = [
     "LandmarkDatabase",
+    "PairMemo",
     "PairResult",
     "QueryResult",
     "compare",

@@ -34,7 +34,7 @@ from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.ingest import StreamHealth, ingest_section, warn_once
 from decod_rs.io import find_imu_topic
 from decod_rs.joints import Joint, joint_registry, write_joints_csv
-from decod_rs.matching import LandmarkDatabase
+from decod_rs.matching import LandmarkDatabase, PairMemo
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
 from decod_rs.refinement import RebuildDecision, rebuild_decision
@@ -293,6 +293,7 @@ class _Matched:
     keep: list[bool]
     reasons: list[str]
     by_prior: frozenset[int] = frozenset()
+    pairs: PairMemo | None = None
 
     @property
     def database(self) -> int:
@@ -343,17 +344,18 @@ def _match_and_select(
         stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
         poses = interpolate_poses(scan_stamps, link_frame, stamps)
         linking = dict(zip(ex.anchor_stamps, poses, strict=True))
+    pairs = PairMemo(ex.landmarks, m)
     tracks = group_views(
         ex.landmarks,
         linking,
         float(m.duplicate_radius_m),
         float(m.min_time_separation_s),
-        same_boundary(ex.landmarks, m),
+        same_boundary(ex.landmarks, m, pairs),
     )
     where = world_origins(ex.landmarks, anchors)
     results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split)
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)
-    return _Matched(split, tracks, results, used_mode, db_order, keep, reasons)
+    return _Matched(split, tracks, results, used_mode, db_order, keep, reasons, pairs=pairs)
 
 
 def _resolve(
@@ -403,7 +405,14 @@ def _factors(
     if not cfg.graph.sequential:
         return constraints, None
     seq = sequential_constraints(
-        ex.landmarks, matched.tracks, anchors, anchor_stamps, path_along(*scans), cfg, across
+        ex.landmarks,
+        matched.tracks,
+        anchors,
+        anchor_stamps,
+        path_along(*scans),
+        cfg,
+        across,
+        matched.pairs,
     )
     return constraints + seq.constraints, seq
 

@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 
 from decod_rs._core import Landmark, PairResult
 from decod_rs.graph import LoopConstraint
-from decod_rs.matching import compare_pairs
+from decod_rs.matching import PairMemo
 from decod_rs.tracks import world_origins
 
 FloatArray = NDArray[np.float64]
@@ -159,14 +159,16 @@ def _verdict(pair: PairResult, matching: Any) -> str:
 
 
 def same_boundary(
-    landmarks: Sequence[Landmark], matching: Any
+    landmarks: Sequence[Landmark], matching: Any, pairs: PairMemo | None = None
 ) -> Callable[[list[tuple[int, int]]], list[bool]]:
     """A track-link confirmation (:func:`decod_rs.tracks.group_views`): the matcher
-    verifies each (earlier, later) pair as one boundary (all pairs in one batch)."""
+    verifies each (earlier, later) pair as one boundary (all pairs in one batch; through
+    ``pairs`` when given, so later rounds reuse them)."""
+    memo = pairs if pairs is not None else PairMemo(landmarks, matching)
 
     def confirm(links: list[tuple[int, int]]) -> list[bool]:
-        pairs = compare_pairs(landmarks, [(j, i) for i, j in links], matching)
-        return [not _verdict(p, matching) for p in pairs]
+        found = memo.compare([(j, i) for i, j in links])
+        return [not _verdict(p, matching) for p in found]
 
     return confirm
 
@@ -179,10 +181,12 @@ def sequential_constraints(
     path_at: Any,
     cfg: Any,
     sigma_transverse_m: float | None = None,
+    pairs: PairMemo | None = None,
 ) -> SequentialFactors:
     """Factors between consecutive views of every track (module docs). ``path_at(stamp)``:
     path length along the odometry at a stamp (metres); ``sigma_transverse_m``: their sigma
-    across the axis (:func:`transverse_noise_m`; None: the same as along it)."""
+    across the axis (:func:`transverse_noise_m`; None: the same as along it); ``pairs``:
+    the comparisons already made on ``landmarks`` (the track links', earlier rounds')."""
     m = cfg.matching
     where = world_origins(landmarks, anchors)
     stamps = np.array([lm.submap_stamp for lm in landmarks])
@@ -201,7 +205,8 @@ def sequential_constraints(
     for t in np.unique(tracks):
         views = sorted((int(k) for k in np.flatnonzero(tracks == t)), key=lambda k: stamps[k])
         consecutive += [(a, b) for a, b in itertools.pairwise(views) if stamps[a] != stamps[b]]
-    results = compare_pairs(landmarks, [(b, a) for a, b in consecutive], m)
+    memo = pairs if pairs is not None else PairMemo(landmarks, m)
+    results = memo.compare([(b, a) for a, b in consecutive])
     out.pairs = len(consecutive)
     for (a, b), pair in zip(consecutive, results, strict=True):
         why = _verdict(pair, m)

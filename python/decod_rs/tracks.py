@@ -59,17 +59,21 @@ def candidate_links(
     """Pairs (earlier, later) of views from different submaps less than ``window_s`` apart
     whose origins lie within ``radius_m`` in the odometry frame."""
     where = world_origins(landmarks, anchors)
-    stamps = np.array([lm.submap_stamp for lm in landmarks])
+    stamps = np.array([lm.submap_stamp for lm in landmarks], dtype=np.float64)
     order = np.argsort(stamps, kind="stable")
-    links = []
-    for a, i in enumerate(order):
-        for j in order[a + 1 :]:
-            if stamps[j] - stamps[i] >= window_s:
-                break
-            if stamps[j] == stamps[i]:
-                continue  # one submap's boundaries are distinct by construction (NMS)
-            if np.linalg.norm(where[i] - where[j]) < radius_m:
-                links.append((int(i), int(j)))
+    t, w = stamps[order], where[order]
+    # The later views within the window of each one (sorted stamps: a prefix of the rest;
+    # one past the searched end, re-checked exactly, absorbs rounding of t + window).
+    ends = np.minimum(np.searchsorted(t, t + window_s, side="left") + 1, len(t))
+    links: list[tuple[int, int]] = []
+    for a in range(len(t)):
+        b = np.arange(a + 1, ends[a])
+        if b.size == 0:
+            continue
+        # One submap's boundaries are distinct by construction (NMS): never linked.
+        ok = (t[b] - t[a] < window_s) & (t[b] != t[a])
+        ok &= np.linalg.norm(w[b] - w[a], axis=1) < radius_m
+        links.extend((int(order[a]), int(order[k])) for k in b[ok])
     return links
 
 
