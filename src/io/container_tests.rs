@@ -326,3 +326,61 @@ fn db3_reads_in_row_order_and_refuses_other_files() {
     let mut source = MessageSource::new(vec![(not_a_bag, Container::Db3)]);
     assert!(source.next().unwrap().is_err());
 }
+
+#[test]
+fn mcap_payload_filter_empties_only_the_rejected_channels() {
+    // Two channels, chunked (1 KB chunks, so messages sit inside chunks) and top level: the
+    // filter keeps /chatter's payloads, the other channel's messages come with empty data
+    // and the same times and count.
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut w = mcap::WriteOptions::new()
+        .compression(None)
+        .chunk_size(Some(1024))
+        .create(&mut out)
+        .unwrap();
+    let schema = w
+        .add_schema("std_msgs/String", "ros1msg", b"string data")
+        .unwrap();
+    let keep = w
+        .add_channel(schema, "/chatter", "ros1", &BTreeMap::new())
+        .unwrap();
+    let drop_ = w
+        .add_channel(schema, "/points", "ros1", &BTreeMap::new())
+        .unwrap();
+    for k in 0..20u64 {
+        let header = |channel_id| mcap::records::MessageHeader {
+            channel_id,
+            sequence: k as u32,
+            log_time: 1_000 + k,
+            publish_time: 1_000 + k,
+        };
+        w.write_to_known_channel(&header(keep), &payload(k))
+            .unwrap();
+        w.write_to_known_channel(&header(drop_), &payload(k + 1))
+            .unwrap();
+    }
+    w.finish().unwrap();
+    drop(w);
+    let path = temp_path("payload_filter.mcap");
+    std::fs::write(&path, out.into_inner()).unwrap();
+    let filter: super::source::PayloadFilter =
+        std::sync::Arc::new(|c: &super::source::ChannelMeta| c.topic == "/chatter");
+    let mut source =
+        MessageSource::new(vec![(path.clone(), Container::Mcap)]).with_payloads(filter);
+    let msgs: Vec<_> = source.by_ref().map(|m| m.unwrap()).collect();
+    assert!(source.faults().is_empty(), "{:?}", source.faults());
+    assert_eq!(msgs.len(), 40);
+    for m in &msgs {
+        let k = m.log_time - 1_000;
+        if m.channel.topic == "/chatter" {
+            assert_eq!(m.data, payload(k));
+        } else {
+            assert!(m.data.is_empty());
+        }
+    }
+    // Without a filter every payload is read.
+    let (all, faults) = read(&path, Container::Mcap);
+    assert!(faults.is_empty());
+    assert!(all.iter().all(|(_, d)| !d.is_empty()));
+    std::fs::remove_file(&path).unwrap();
+}

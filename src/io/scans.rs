@@ -10,12 +10,13 @@
 //! at 42-55 M points/s end to end (both passes, decompression and numpy conversion included).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use super::imu::{ImuSample, ImuSeries};
 use super::log::{TopicInfo, log_error, log_files};
 use super::messages::{MessageKind, decode_cloud, decode_imu_message, decode_poses};
 use super::odometry::{DEFAULT_GAP_PERIODS, OdometryGap, PoseSample, Trajectory};
-use super::source::{LogFault, MessageSource};
+use super::source::{ChannelMeta, LogFault, MessageSource, PayloadFilter};
 use super::tum::read_tum;
 use super::wire::Encoding;
 use crate::error::{DecodError, Result};
@@ -358,7 +359,13 @@ impl FirstPass {
         let mut channels: Vec<ChannelInfo> = Vec::new();
         let mut kept: Vec<KeptMessage> = Vec::new();
         let mut first_pass_fault = None;
-        let mut source = MessageSource::new(files.to_vec());
+        // Only odometry and IMU payloads are kept: the point clouds are read in the second
+        // pass, not copied here.
+        let kept_kinds: PayloadFilter = Arc::new(|c: &ChannelMeta| {
+            MessageKind::from_type(&c.message_type)
+                .is_some_and(|k| k.is_odometry() || k == MessageKind::Imu)
+        });
+        let mut source = MessageSource::new(files.to_vec()).with_payloads(kept_kinds);
         for msg in source.by_ref() {
             let msg = match msg {
                 Ok(m) => m,

@@ -14,6 +14,9 @@ use std::sync::Arc;
 
 use crate::error::{DecodError, Result};
 
+/// Which channels' message payloads a reader returns (see [`MessageSource::with_payloads`]).
+pub type PayloadFilter = Arc<dyn Fn(&ChannelMeta) -> bool + Send + Sync>;
+
 /// One channel (topic) of a log, whatever the container.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ChannelMeta {
@@ -175,6 +178,7 @@ pub struct MessageSource {
     faults: Vec<LogFault>,
     faults_dropped: usize,
     done: bool,
+    payloads: Option<PayloadFilter>,
 }
 
 impl MessageSource {
@@ -187,7 +191,16 @@ impl MessageSource {
             faults: Vec::new(),
             faults_dropped: 0,
             done: false,
+            payloads: None,
         }
+    }
+
+    /// Messages on channels `filter` rejects come with empty data where the container allows
+    /// it (MCAP; bag and sqlite3 records are read whole either way). Their count, time and
+    /// channel are unchanged.
+    pub fn with_payloads(mut self, filter: PayloadFilter) -> Self {
+        self.payloads = Some(filter);
+        self
     }
 
     /// The files read, with their container.
@@ -205,9 +218,15 @@ impl MessageSource {
         self.faults_dropped
     }
 
-    fn open(path: &Path, container: Container) -> Result<Box<dyn ContainerReader>> {
+    fn open(
+        path: &Path,
+        container: Container,
+        payloads: Option<PayloadFilter>,
+    ) -> Result<Box<dyn ContainerReader>> {
         Ok(match container {
-            Container::Mcap => Box::new(super::mcap_file::McapFile::open(path)?),
+            Container::Mcap => {
+                Box::new(super::mcap_file::McapFile::open(path)?.with_payloads(payloads))
+            }
             Container::Bag => Box::new(super::bag::BagFile::open(path)?),
             Container::Db3 => Box::new(super::db3::Db3File::open(path)?),
         })
@@ -222,7 +241,7 @@ impl Iterator for MessageSource {
             if self.current.is_none() {
                 let (path, container) = self.files.get(self.next_file)?.clone();
                 self.next_file += 1;
-                match Self::open(&path, container) {
+                match Self::open(&path, container, self.payloads.clone()) {
                     Ok(reader) => self.current = Some(reader),
                     Err(e) => {
                         self.done = true;
