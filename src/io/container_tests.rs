@@ -28,6 +28,12 @@ fn payload(k: u64) -> Vec<u8> {
 }
 
 fn mcap_bytes(compression: Option<mcap::Compression>) -> Vec<u8> {
+    mcap_bytes_on(&["/chatter"], compression)
+}
+
+/// Twenty messages on each of `topics` in turn (topic `i` carries `payload(k + i)`), in
+/// 1 KB chunks.
+fn mcap_bytes_on(topics: &[&str], compression: Option<mcap::Compression>) -> Vec<u8> {
     let mut out = std::io::Cursor::new(Vec::new());
     let mut w = mcap::WriteOptions::new()
         .compression(compression)
@@ -37,17 +43,21 @@ fn mcap_bytes(compression: Option<mcap::Compression>) -> Vec<u8> {
     let schema = w
         .add_schema("std_msgs/String", "ros1msg", b"string data")
         .unwrap();
-    let channel = w
-        .add_channel(schema, "/chatter", "ros1", &BTreeMap::new())
-        .unwrap();
+    let channels: Vec<u16> = topics
+        .iter()
+        .map(|t| w.add_channel(schema, t, "ros1", &BTreeMap::new()).unwrap())
+        .collect();
     for k in 0..20u64 {
-        let header = mcap::records::MessageHeader {
-            channel_id: channel,
-            sequence: k as u32,
-            log_time: 1_000 + k,
-            publish_time: 1_000 + k,
-        };
-        w.write_to_known_channel(&header, &payload(k)).unwrap();
+        for (i, &channel_id) in channels.iter().enumerate() {
+            let header = mcap::records::MessageHeader {
+                channel_id,
+                sequence: k as u32,
+                log_time: 1_000 + k,
+                publish_time: 1_000 + k,
+            };
+            w.write_to_known_channel(&header, &payload(k + i as u64))
+                .unwrap();
+        }
     }
     w.finish().unwrap();
     drop(w);
@@ -329,40 +339,10 @@ fn db3_reads_in_row_order_and_refuses_other_files() {
 
 #[test]
 fn mcap_payload_filter_empties_only_the_rejected_channels() {
-    // Two channels, chunked (1 KB chunks, so messages sit inside chunks) and top level: the
-    // filter keeps /chatter's payloads, the other channel's messages come with empty data
-    // and the same times and count.
-    let mut out = std::io::Cursor::new(Vec::new());
-    let mut w = mcap::WriteOptions::new()
-        .compression(None)
-        .chunk_size(Some(1024))
-        .create(&mut out)
-        .unwrap();
-    let schema = w
-        .add_schema("std_msgs/String", "ros1msg", b"string data")
-        .unwrap();
-    let keep = w
-        .add_channel(schema, "/chatter", "ros1", &BTreeMap::new())
-        .unwrap();
-    let drop_ = w
-        .add_channel(schema, "/points", "ros1", &BTreeMap::new())
-        .unwrap();
-    for k in 0..20u64 {
-        let header = |channel_id| mcap::records::MessageHeader {
-            channel_id,
-            sequence: k as u32,
-            log_time: 1_000 + k,
-            publish_time: 1_000 + k,
-        };
-        w.write_to_known_channel(&header(keep), &payload(k))
-            .unwrap();
-        w.write_to_known_channel(&header(drop_), &payload(k + 1))
-            .unwrap();
-    }
-    w.finish().unwrap();
-    drop(w);
+    // Two channels in 1 KB chunks: the filter keeps /chatter's payloads, the other
+    // channel's messages come with empty data and the same times and count.
     let path = temp_path("payload_filter.mcap");
-    std::fs::write(&path, out.into_inner()).unwrap();
+    std::fs::write(&path, mcap_bytes_on(&["/chatter", "/points"], None)).unwrap();
     let filter: super::source::PayloadFilter =
         std::sync::Arc::new(|c: &super::source::ChannelMeta| c.topic == "/chatter");
     let mut source =
