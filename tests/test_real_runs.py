@@ -196,3 +196,32 @@ def test_cli_prints_the_damage_once_on_one_line(
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if "warning" in line]
     assert len(lines) == 1 and lines[0].startswith(f"decod run: warning: {cut}: truncated at byte")
+
+
+def test_imu_samples_handed_on_give_the_same_submaps(sim: Path, tmp_path: Path) -> None:
+    """The rebuilt round takes the IMU the first extraction read (no second pass over the log
+    for it): the same landmarks (their gravity-referenced frame, their descriptors) as
+    reading the topic, and a refusal of a wrong shape naming the argument."""
+    cfg = json.dumps(load_config(None, "pipe").to_dict())
+    log, tum = str(sim / "log"), str(sim / "odom.tum")
+
+    def landmarks(processor: _core.LogProcessor) -> list[np.ndarray]:
+        out = []
+        while (batch := processor.step()) is not None:
+            for s in batch:
+                out += [np.concatenate([lm.e1, lm.descriptor.ravel()]) for lm in s.result.landmarks]
+        return out
+
+    first = _core.LogProcessor(log, cfg, odom_tum=tum, imu_topic="/imu", map=False)
+    read = landmarks(first)
+    imu = first.imu_samples()
+    assert imu is not None and imu.shape[1] == 4 and imu.shape[0] > 1000
+    assert np.all(np.diff(imu[:, 0]) >= 0)
+    again = _core.LogProcessor(log, cfg, odom_tum=tum, imu_samples=imu, map=False)
+    handed = landmarks(again)
+    assert len(handed) == len(read) > 5
+    for a, b in zip(handed, read, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert _core.LogProcessor(log, cfg, odom_tum=tum, map=False).imu_samples() is None
+    with pytest.raises(ValueError, match="imu_samples"):
+        _core.LogProcessor(log, cfg, odom_tum=tum, imu_samples=imu[:, :3], map=False)

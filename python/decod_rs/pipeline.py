@@ -112,6 +112,7 @@ def _extract(
     imu_topic: str | None,
     progress: bool,
     keep_map: bool = False,
+    imu_samples: FloatArray | None = None,
 ) -> tuple[_core.LogProcessor, _Extracted]:
     processor = _core.LogProcessor(
         str(log),
@@ -121,6 +122,7 @@ def _extract(
         odom_tum=None if odom_tum is None else str(odom_tum),
         imu_topic=imu_topic,
         map=keep_map,
+        imu_samples=imu_samples,
     )
     bar = Progress("extract", processor.total_scans_hint or None, enabled=progress)
     out = _Extracted()
@@ -506,7 +508,11 @@ def _rebuild(
         tum = Path(tmp) / "corrected.tum"
         write_tum(tum, stamps, corrected)
         points = extraction.processor.points_topic
-        _, ex = _extract(extraction.log, cfg, points, None, tum, extraction.imu_topic, progress)
+        # The IMU the first extraction read: with the odometry from the file above, the log is
+        # then read once, for its scans (not once more for the IMU).
+        imu = extraction.processor.imu_samples()
+        topic = extraction.imu_topic if imu is None else None
+        _, ex = _extract(extraction.log, cfg, points, None, tum, topic, progress, imu_samples=imu)
     anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
     ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
     return ex

@@ -40,6 +40,11 @@ impl ImuSeries {
         Self { samples }
     }
 
+    /// The samples, sorted by stamp.
+    pub fn samples(&self) -> &[ImuSample] {
+        &self.samples
+    }
+
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.samples.len()

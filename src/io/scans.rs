@@ -42,6 +42,9 @@ pub struct ScanStreamOptions {
     pub odometry: OdometrySource,
     /// IMU topic (sensor_msgs/Imu); `None` = no IMU (see [`find_imu_topic`]).
     pub imu_topic: Option<String>,
+    /// IMU samples already read from this log (an earlier stream's [`ScanStream::imu`]):
+    /// used instead of reading `imu_topic` again, which takes a pass over the whole file.
+    pub imu_samples: Option<Vec<ImuSample>>,
     /// Odometry intervals longer than this many median periods are gaps, not interpolated
     /// (`submap.odometry_gap_periods`; <= 0 turns gap detection off).
     pub gap_periods: f64,
@@ -53,6 +56,7 @@ impl Default for ScanStreamOptions {
             points_topic: None,
             odometry: OdometrySource::Topic(None),
             imu_topic: None,
+            imu_samples: None,
             gap_periods: DEFAULT_GAP_PERIODS,
         }
     }
@@ -200,8 +204,8 @@ impl ScanStream {
         let files = log_files(path)?;
         // Pass 1 (skipped when only the channel table is needed and every file has a
         // summary, e.g. odometry from a TUM file without IMU).
-        let needs_messages =
-            matches!(opts.odometry, OdometrySource::Topic(_)) || opts.imu_topic.is_some();
+        let needs_messages = matches!(opts.odometry, OdometrySource::Topic(_))
+            || (opts.imu_topic.is_some() && opts.imu_samples.is_none());
         let summary = if needs_messages {
             None
         } else {
@@ -242,9 +246,10 @@ impl ScanStream {
             &mut message_errors,
             fault_text,
         )?;
-        let imu = match &opts.imu_topic {
-            None => None,
-            Some(requested) => Some(imu_series(path, &channels, &kept, requested)?),
+        let imu = match (&opts.imu_samples, &opts.imu_topic) {
+            (Some(samples), _) => Some(ImuSeries::new(samples.clone())),
+            (None, None) => None,
+            (None, Some(requested)) => Some(imu_series(path, &channels, &kept, requested)?),
         };
         Ok(Self {
             path: path.to_path_buf(),
@@ -280,6 +285,12 @@ impl ScanStream {
     /// The odometry `(stamp, T_world_body)` series, sorted by stamp.
     pub fn odometry(&self) -> Vec<(f64, Pose)> {
         self.trajectory.samples().map(|(t, p)| (t, *p)).collect()
+    }
+
+    /// The IMU samples (sorted by stamp) the stream attaches to its scans; `None` without
+    /// an IMU.
+    pub fn imu(&self) -> Option<&[ImuSample]> {
+        self.imu.as_ref().map(ImuSeries::samples)
     }
 
     /// The point-cloud topic being read.

@@ -181,6 +181,7 @@ fn open_scan_stream(
         points_topic: points,
         odometry,
         imu_topic: imu,
+        imu_samples: None,
         gap_periods,
     };
     let stream = detached(py, || ScanStream::open(&path, &opts))?;

@@ -6,11 +6,12 @@
 use std::path::PathBuf;
 use std::sync::Mutex;
 
-use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray3};
+use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::geometry::{Pose, pose_from_matrix, pose_to_matrix};
+use crate::io::imu::ImuSample;
 use crate::io::{OdometrySource, ScanStreamOptions};
 use crate::map::SegmentMap;
 use crate::pipeline::{LogProcessor, ProcessedSubmap};
@@ -77,7 +78,7 @@ impl PyLogProcessor {
 #[pymethods]
 impl PyLogProcessor {
     #[new]
-    #[pyo3(signature = (path, config_json, *, points_topic = None, odom_topic = None, odom_tum = None, imu_topic = None, batch = 2, map = true))]
+    #[pyo3(signature = (path, config_json, *, points_topic = None, odom_topic = None, odom_tum = None, imu_topic = None, batch = 2, map = true, imu_samples = None))]
     #[allow(clippy::too_many_arguments)]
     fn py_new(
         py: Python<'_>,
@@ -89,6 +90,7 @@ impl PyLogProcessor {
         imu_topic: Option<String>,
         batch: usize,
         map: bool,
+        imu_samples: Option<PyReadonlyArray2<'_, f64>>,
     ) -> PyResult<Self> {
         if odom_topic.is_some() && odom_tum.is_some() {
             return Err(PyValueError::new_err(
@@ -103,6 +105,7 @@ impl PyLogProcessor {
                 None => OdometrySource::Topic(odom_topic),
             },
             imu_topic,
+            imu_samples: imu_samples.map(|a| imu_rows(&a)).transpose()?,
             gap_periods: config.submap.odometry_gap_periods,
         };
         let mut inner = detached(py, || LogProcessor::open(&path, &options, &config, batch))?;
@@ -161,6 +164,27 @@ impl PyLogProcessor {
     #[getter]
     fn skipped_outside_odometry(&self) -> PyResult<Vec<f64>> {
         Ok(self.lock()?.skipped_outside_odometry().to_vec())
+    }
+    /// The IMU samples attached to scans, `(N, 4)`: stamp (s) and specific force (m/s^2),
+    /// sorted by stamp; `None` without an IMU. Give them to a later processor of the same log
+    /// (`imu_samples=`) to spare it a pass over the file.
+    fn imu_samples<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f64>>>> {
+        let guard = self.lock()?;
+        let Some(samples) = guard.stream().imu() else {
+            return Ok(None);
+        };
+        let flat: Vec<f64> = samples
+            .iter()
+            .flat_map(|s| {
+                [
+                    s.stamp,
+                    s.specific_force[0],
+                    s.specific_force[1],
+                    s.specific_force[2],
+                ]
+            })
+            .collect();
+        flat_to_numpy(py, flat, samples.len(), 4).map(Some)
     }
     /// Stamps of every scan read so far, `(M,)`.
     fn scan_stamps<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
@@ -243,6 +267,26 @@ impl PyLogProcessor {
 }
 
 /// The voxel map of a processor, or a ValueError when it was created with `map=False`.
+/// `(N, 4)` rows of stamp and specific force into IMU samples (non-finite rows are dropped
+/// by the series, as when read from the log).
+fn imu_rows(array: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<ImuSample>> {
+    let view = array.as_array();
+    if view.ncols() != 4 {
+        return Err(PyValueError::new_err(format!(
+            "imu_samples must have shape (N, 4) (stamp, specific force x, y, z), got {:?}",
+            view.shape()
+        )));
+    }
+    Ok(view
+        .rows()
+        .into_iter()
+        .map(|r| ImuSample {
+            stamp: r[0],
+            specific_force: [r[1], r[2], r[3]],
+        })
+        .collect())
+}
+
 fn map_of(processor: &LogProcessor) -> PyResult<&SegmentMap> {
     processor
         .map()
