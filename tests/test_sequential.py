@@ -106,33 +106,3 @@ def test_joints_closer_than_the_drift_of_a_submap_interval_make_no_wrong_track(
     # Every track holds views of one joint: its views lie within a few cm in the true world,
     # never a joint spacing (1 m) apart.
     assert max(spans) < 0.3, sorted(spans)[-5:]
-
-
-def test_track_links_take_four_inliers_beyond_chance_and_nothing_less() -> None:
-    """Within a pass the odometry has already placed the two views within
-    ``duplicate_radius_m``: the descriptors confirm the link with TRACK_MIN_INLIERS (4)
-    inliers beyond chance, where a loop needs ``min_inliers_floor`` (6). Any other rejection,
-    a reversed heading or agreement at chance level still refuses it."""
-    from types import SimpleNamespace
-
-    from decod_rs.config import load_config
-    from decod_rs.sequential import TRACK_MIN_INLIERS, _verdict
-
-    m = load_config(None, "pipe").matching
-    rare = float(m.false_alarm_rate) / 10
-
-    def pair(**kw: object) -> SimpleNamespace:
-        base = {"rejection": None, "inliers": 8, "heading_deg": 0.0, "chance": rare}
-        return SimpleNamespace(**{**base, **kw})
-
-    assert TRACK_MIN_INLIERS < int(m.min_inliers_floor)
-    assert _verdict(pair(), m) == ""  # type: ignore[arg-type]
-    few = {"rejection": "too_few_inliers"}
-    assert _verdict(pair(**few, inliers=TRACK_MIN_INLIERS), m) == ""  # type: ignore[arg-type]
-    below = pair(**few, inliers=TRACK_MIN_INLIERS - 1)
-    assert _verdict(below, m) == "too_few_inliers"  # type: ignore[arg-type]
-    chance = pair(**few, inliers=5, chance=float(m.false_alarm_rate) * 10)
-    assert _verdict(chance, m) == "chance"  # type: ignore[arg-type]
-    assert _verdict(pair(heading_deg=180.0), m) == "heading"  # type: ignore[arg-type]
-    overlap = pair(rejection="insufficient_overlap", inliers=9)
-    assert _verdict(overlap, m) == "insufficient_overlap"  # type: ignore[arg-type]
