@@ -147,17 +147,9 @@ def transverse_noise_m(
     return max(float(np.sqrt(sq / dof)), floor_m)
 
 
-#: Inliers a within-pass pair needs when the null model finds it beyond chance. Loops keep
-#: ``min_inliers_floor`` (6): among all boundaries, repeated structure made K = 5 wrong
-#: 4 times in 57. A track link is one candidate the odometry already placed within
-#: ``duplicate_radius_m``; its descriptors only confirm it.
-TRACK_MIN_INLIERS = 4
-
-
 def _verdict(pair: PairResult, matching: Any) -> str:
     """Why a within-pass pair is not one boundary ("" if it is)."""
-    floor_only = pair.rejection == "too_few_inliers" and pair.inliers >= TRACK_MIN_INLIERS
-    if pair.rejection is not None and not floor_only:
+    if pair.rejection is not None:
         return pair.rejection
     if abs(pair.heading_deg) > 90.0:
         return "heading"
