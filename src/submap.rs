@@ -86,7 +86,7 @@ impl VoxelCache {
 
 /// Initial voxel-map capacity for a window of scans: a quarter of its points, bounded
 /// (occupied voxels are a fraction of the points; growing the table rehashed it ~5 times).
-fn cfg_capacity_hint(scans: &[Scan]) -> usize {
+fn capacity_hint(scans: &[Scan]) -> usize {
     let points: usize = scans.iter().map(|s| s.points_in_body.len()).sum();
     (points / 4).min(1 << 20)
 }
@@ -179,7 +179,7 @@ impl Submap {
         // touches the map (which no longer fits in cache: 0.8-1.5 M points per 64-beam
         // submap, ~100k voxels).
         let mut voxels: VoxelMap<([f64; 3], u32)> =
-            VoxelMap::with_capacity_and_hasher(cfg_capacity_hint(scans), Default::default());
+            VoxelMap::with_capacity_and_hasher(capacity_hint(scans), Default::default());
         let mut cache = VoxelCache::new();
         let mut force_sum = Vector3::zeros();
         let mut force_count = 0usize;

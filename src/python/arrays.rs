@@ -7,21 +7,30 @@ use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-/// `(N, 3)` float64 points into owned rows. Non-finite values are left for the core to
-/// report (it knows which index and why it matters).
-pub(crate) fn points_n3(array: &PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<Vec<[f64; 3]>> {
+/// `(N, K)` float64 rows into owned arrays; `name` is the argument named in the error.
+/// Non-finite values are left for the core to report (it knows which index and why it
+/// matters).
+pub(crate) fn rows_n<const K: usize>(
+    array: &PyReadonlyArray2<'_, f64>,
+    name: &str,
+) -> PyResult<Vec<[f64; K]>> {
     let view = array.as_array();
-    if view.ncols() != 3 {
+    if view.ncols() != K {
         return Err(PyValueError::new_err(format!(
-            "`{name}` must have shape (N, 3), got {:?}",
+            "`{name}` must have shape (N, {K}), got {:?}",
             view.shape()
         )));
     }
     Ok(view
         .rows()
         .into_iter()
-        .map(|r| [r[0], r[1], r[2]])
+        .map(|r| std::array::from_fn(|i| r[i]))
         .collect())
+}
+
+/// `(N, 3)` float64 points into owned rows ([`rows_n`]).
+pub(crate) fn points_n3(array: &PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<Vec<[f64; 3]>> {
+    rows_n(array, name)
 }
 
 /// `(4, 4)` float64 homogeneous matrix into a row-major array.

@@ -16,7 +16,7 @@ use crate::io::{OdometrySource, ScanStreamOptions};
 use crate::map::SegmentMap;
 use crate::pipeline::{LogProcessor, ProcessedSubmap};
 
-use super::arrays::flat_to_numpy;
+use super::arrays::{flat_to_numpy, rows_n};
 use super::detached;
 use super::errors::to_py_err;
 use super::extraction::{PyExtractionResult, config_from_json};
@@ -266,27 +266,21 @@ impl PyLogProcessor {
     }
 }
 
-/// The voxel map of a processor, or a ValueError when it was created with `map=False`.
 /// `(N, 4)` rows of stamp and specific force into IMU samples (non-finite rows are dropped
 /// by the series, as when read from the log).
 fn imu_rows(array: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<ImuSample>> {
-    let view = array.as_array();
-    if view.ncols() != 4 {
-        return Err(PyValueError::new_err(format!(
-            "imu_samples must have shape (N, 4) (stamp, specific force x, y, z), got {:?}",
-            view.shape()
-        )));
-    }
-    Ok(view
-        .rows()
-        .into_iter()
-        .map(|r| ImuSample {
-            stamp: r[0],
-            specific_force: [r[1], r[2], r[3]],
-        })
-        .collect())
+    Ok(
+        rows_n::<4>(array, "imu_samples (stamp, specific force x, y, z)")?
+            .into_iter()
+            .map(|[stamp, x, y, z]| ImuSample {
+                stamp,
+                specific_force: [x, y, z],
+            })
+            .collect(),
+    )
 }
 
+/// The voxel map of a processor, or a ValueError when it was created with `map=False`.
 fn map_of(processor: &LogProcessor) -> PyResult<&SegmentMap> {
     processor
         .map()
