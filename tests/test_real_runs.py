@@ -19,6 +19,7 @@ from decod_rs import _core
 from decod_rs.cli import main as cli_main
 from decod_rs.config import load_config
 from decod_rs.ingest import WEAK_GAP_SIGMA_FACTOR, gap_bridges
+from decod_rs.io import read_log
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
 
@@ -225,3 +226,9 @@ def test_imu_samples_handed_on_give_the_same_submaps(sim: Path, tmp_path: Path) 
     assert _core.LogProcessor(log, cfg, odom_tum=tum, map=False).imu_samples() is None
     with pytest.raises(ValueError, match="imu_samples"):
         _core.LogProcessor(log, cfg, odom_tum=tum, imu_samples=imu[:, :3], map=False)
+    # The auto probe's reader hands its pass's IMU to the first extraction: the same samples.
+    reader = read_log(sim / "log", None, None, sim / "odom.tum", "/imu")
+    probed = reader.imu_samples()
+    assert probed is not None
+    np.testing.assert_array_equal(probed, imu)
+    assert read_log(sim / "log", None, None, sim / "odom.tum", None).imu_samples() is None

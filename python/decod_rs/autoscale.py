@@ -165,8 +165,8 @@ def _read_probe_scans(
     odom_topic: str | None,
     odom_tum: Path | None,
     imu_topic: str | None,
-) -> tuple[list[Any], FloatArray]:
-    """The first PROBE_MAX_SCANS scans of ``log`` and its odometry."""
+) -> tuple[list[Any], FloatArray, FloatArray | None]:
+    """The first PROBE_MAX_SCANS scans of ``log``, its odometry and its IMU samples."""
     reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic)
     scans = []
     with warnings.catch_warnings():
@@ -180,7 +180,7 @@ def _read_probe_scans(
         raise ValueError(
             f"{log}: auto configuration needs >= {PROBE_SCANS} scans, got {len(scans)}"
         )
-    return scans, reader.odometry()
+    return scans, reader.odometry(), reader.imu_samples()
 
 
 def _relief(windows: list[list[Any]], probe: CorridorProbe) -> float:
@@ -203,9 +203,11 @@ def probe_corridor(
     odom_topic: str | None,
     odom_tum: Path | None,
     imu_topic: str | None,
-) -> CorridorProbe:
-    """Measure the corridor from the first scans of ``log`` (module docs, steps 1-4)."""
-    scans, odometry = _read_probe_scans(log, points_topic, odom_topic, odom_tum, imu_topic)
+) -> tuple[CorridorProbe, FloatArray | None]:
+    """Measure the corridor from the first scans of ``log`` (module docs, steps 1-4). Also
+    returns the IMU samples the probe's pass over the log read (``None`` without an IMU):
+    the run's processor takes them instead of reading the whole file for them again."""
+    scans, odometry, imu = _read_probe_scans(log, points_topic, odom_topic, odom_tum, imu_topic)
     cfg = _probe_config()
     starts = np.linspace(0, len(scans) - PROBE_SCANS, PROBE_COUNT).astype(int)
     radii, nears, windows = [], [], []
@@ -240,7 +242,7 @@ def probe_corridor(
         scan_rate_hz=rate,
         probes=len(radii),
     )
-    return replace(probe, relief_m=_relief(windows, probe))
+    return replace(probe, relief_m=_relief(windows, probe)), imu
 
 
 def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:

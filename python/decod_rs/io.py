@@ -96,6 +96,12 @@ class ScanReader(Iterator[ScanRecord]):
         """Points dropped so far because a coordinate was NaN or infinite."""
         return self._inner.dropped_non_finite_points()
 
+    def imu_samples(self) -> npt.NDArray[np.float64] | None:
+        """The IMU samples the stream read before its first cloud, ``(N, 4)``: stamp (s) and
+        specific force (m/s^2); ``None`` without an IMU. A later ``LogProcessor`` of the same
+        log takes them (``imu_samples=``) instead of reading the whole file again."""
+        return self._inner.imu_samples()
+
     def odometry(self) -> npt.NDArray[np.float64]:
         """The odometry as ``(M, 8)`` TUM rows ``stamp tx ty tz qx qy qz qw``, by stamp."""
         return self._inner.odometry()

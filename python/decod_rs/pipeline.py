@@ -309,14 +309,16 @@ def _configure(
     topics: tuple[str | None, str | None, Path | None, str | None],
     sequential: bool | None,
     survey: Survey | None = None,
-) -> tuple[Config, dict[str, Any] | None]:
+) -> tuple[Config, dict[str, Any] | None, FloatArray | None]:
     """The config: measured and derived (``auto``) or a preset, plus the user's TOML; with a
-    survey and neither a preset nor a TOML, the survey's own (same grid and matcher)."""
+    survey and neither a preset nor a TOML, the survey's own (same grid and matcher). Also
+    the IMU samples the ``auto`` probe read, if it read any (for the extraction)."""
     auto: dict[str, Any] | None = None
+    imu: FloatArray | None = None
     if survey is not None and preset == "auto" and config_path is None:
         cfg = survey_config(survey)
     elif preset == "auto":
-        probe = probe_corridor(log, *topics)
+        probe, imu = probe_corridor(log, *topics)
         cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
     else:
         cfg = load_config(config_path, preset)
@@ -324,7 +326,7 @@ def _configure(
         values = cfg.to_dict()
         values["graph"]["sequential"] = bool(sequential)
         cfg = Config(values)
-    return cfg, auto
+    return cfg, auto, imu
 
 
 def _match_and_select(
@@ -653,14 +655,16 @@ def run_log(
     topics = (points_topic, odom_topic, tum, imu_topic)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    cfg, auto = _configure(log, preset, config_path, topics, sequential, srv)
+    cfg, auto, imu = _configure(log, preset, config_path, topics, sequential, srv)
     if srv is not None:
         check_compatible(srv, cfg)
     timings["configure"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
-    processor, ex = _extract(log, cfg, *topics, progress, keep_map=map or rerun is not None)
+    processor, ex = _extract(
+        log, cfg, *topics, progress, keep_map=map or rerun is not None, imu_samples=imu
+    )
     timings["extract"] = time.perf_counter() - t0
     scans = (
         np.asarray(processor.scan_stamps(), dtype=np.float64),

@@ -74,3 +74,22 @@ pub(crate) fn flat_to_numpy<'py, T: numpy::Element>(
         .map(|a| a.into_pyarray(py))
         .map_err(|e| PyValueError::new_err(format!("internal shape error: {e}")))
 }
+
+/// IMU samples as `(N, 4)` rows: stamp (s) and specific force (m/s^2); `None` without an
+/// IMU. What a stream read once, handed to a later stream of the same log (`imu_samples=`).
+pub(crate) fn imu_to_numpy<'py>(
+    py: Python<'py>,
+    samples: Option<&[crate::io::imu::ImuSample]>,
+) -> PyResult<Option<Bound<'py, PyArray2<f64>>>> {
+    let Some(samples) = samples else {
+        return Ok(None);
+    };
+    let rows: Vec<[f64; 4]> = samples
+        .iter()
+        .map(|s| {
+            let f = s.specific_force;
+            [s.stamp, f[0], f[1], f[2]]
+        })
+        .collect();
+    rows_to_numpy(py, &rows).map(Some)
+}

@@ -8,7 +8,7 @@ use numpy::{PyArray1, PyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::arrays::{flat_to_numpy, rows_to_numpy};
+use super::arrays::{flat_to_numpy, imu_to_numpy, rows_to_numpy};
 use super::detached;
 use crate::geometry::{pose_to_matrix, pose_to_tq};
 use crate::io::{LogFault, OdometrySource, ScanStream, ScanStreamOptions};
@@ -75,6 +75,13 @@ impl ScanReader {
     /// What the stream met so far: faults, gaps, clouds left out (see `health_of`).
     fn health(&self) -> HealthRow {
         health_of(&lock(&self.stream))
+    }
+
+    /// The IMU samples the first pass read, `(N, 4)`: stamp (s) and specific force
+    /// (m/s^2), sorted by stamp; `None` without an IMU. A later processor of the same log
+    /// takes them (`LogProcessor(imu_samples=)`) instead of reading the whole file again.
+    fn imu_samples<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f64>>>> {
+        imu_to_numpy(py, lock(&self.stream).imu())
     }
 
     /// The odometry as TUM rows `(N, 8)`: `stamp tx ty tz qx qy qz qw`.

@@ -16,7 +16,7 @@ use crate::io::{OdometrySource, ScanStreamOptions};
 use crate::map::SegmentMap;
 use crate::pipeline::{LogProcessor, ProcessedSubmap};
 
-use super::arrays::{flat_to_numpy, rows_n};
+use super::arrays::{flat_to_numpy, imu_to_numpy, rows_n};
 use super::detached;
 use super::errors::to_py_err;
 use super::extraction::{PyExtractionResult, config_from_json};
@@ -169,22 +169,7 @@ impl PyLogProcessor {
     /// sorted by stamp; `None` without an IMU. Give them to a later processor of the same log
     /// (`imu_samples=`) to spare it a pass over the file.
     fn imu_samples<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<f64>>>> {
-        let guard = self.lock()?;
-        let Some(samples) = guard.stream().imu() else {
-            return Ok(None);
-        };
-        let flat: Vec<f64> = samples
-            .iter()
-            .flat_map(|s| {
-                [
-                    s.stamp,
-                    s.specific_force[0],
-                    s.specific_force[1],
-                    s.specific_force[2],
-                ]
-            })
-            .collect();
-        flat_to_numpy(py, flat, samples.len(), 4).map(Some)
+        imu_to_numpy(py, self.lock()?.stream().imu())
     }
     /// Stamps of every scan read so far, `(M,)`.
     fn scan_stamps<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {

@@ -74,11 +74,11 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
         imu_topic = find_imu_topic(log)
     topics = (options.points_topic, options.odom_topic, options.odom_tum, imu_topic)
     t0 = time.perf_counter()
-    base, auto = _configure(log, options.preset, options.config, topics, options.sequential)
+    base, auto, imu = _configure(log, options.preset, options.config, topics, options.sequential)
     cfg = apply_params(base, params) if params else base
     configure_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    processor, extracted = _extract(log, cfg, *topics, False, keep_map=options.map)
+    processor, extracted = _extract(log, cfg, *topics, False, keep_map=options.map, imu_samples=imu)
     extract_s = time.perf_counter() - t0
     scans = (
         np.asarray(processor.scan_stamps(), dtype=np.float64),
