@@ -4,21 +4,13 @@ whose right answer is known by construction."""
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
-from typing import Any
 
 import numpy as np
 import pytest
 
 from decod_rs.autoscale import CorridorProbe, derive
 from decod_rs.matching import synthetic_landmark
-from decod_rs.selection import (
-    ALIASED_FRACTION,
-    ALIASED_MIN_QUERIES,
-    LoopEvidence,
-    aliasing,
-    select_consistent,
-)
+from decod_rs.selection import LoopEvidence, select_consistent
 from decod_rs.sequential import detection_noise_m
 from decod_rs.tracks import group_views
 
@@ -84,31 +76,6 @@ def test_loops_that_agree_with_each_other_but_not_the_odometry_are_dropped() -> 
 def test_an_isolated_loop_is_uncorroborated() -> None:
     loops = _loops({})[:1]
     assert _select(loops).reasons == ["uncorroborated"]
-
-
-def _outcomes(accepted: int, not_unique: int, other: int = 0) -> list[Any]:
-    """Stand-ins for query results: only the verdict matters to :func:`aliasing`."""
-    return (
-        [SimpleNamespace(accepted=True, rejection=None)] * accepted
-        + [SimpleNamespace(accepted=False, rejection="not_unique")] * not_unique
-        + [SimpleNamespace(accepted=False, rejection="too_few_inliers")] * other
-    )
-
-
-def test_a_corridor_is_aliased_when_most_strong_matches_are_not_unique() -> None:
-    # The pipe with identical joints, within a run: 24 of 28 (other rejections do not count).
-    found = aliasing(_outcomes(4, 24, other=60))
-    assert (found.strong, found.not_unique) == (28, 24) and found.aliased
-    # The most ambiguous non-aliased cell of the matrix: rings closer than the descriptor.
-    assert not aliasing(_outcomes(96, 104)).aliased
-    # Too few strong queries to tell, however ambiguous (the 16-beam pe runs).
-    assert not aliasing(_outcomes(0, ALIASED_MIN_QUERIES - 1)).aliased
-    # The threshold itself: at it aliased, one query below it not.
-    n = 40
-    at = math.ceil(ALIASED_FRACTION * n)
-    assert aliasing(_outcomes(n - at, at)).aliased
-    assert not aliasing(_outcomes(n - at + 1, at - 1)).aliased
-    assert aliasing([]).fraction == 0.0 and not aliasing([]).aliased
 
 
 def test_detection_noise_is_measured_without_the_drift() -> None:

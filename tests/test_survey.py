@@ -247,11 +247,4 @@ def test_aliased_pipe_gives_no_cross_session_loop(tmp_path: Path) -> None:
     session = np.array(loops.extra["session"])
     assert not np.any(loops.accepted & (session == "survey"))
     assert not any(r["survey_joint_id"] for r in _rows(again / "joints.csv"))
-    # Within the second run too (2 m of drift over 30 m): its few unique matches were a wall
-    # feature matched to its copy one joint spacing away; the corridor is called aliased.
-    own = json.loads((again / "report.json").read_text())
-    assert own["aliasing"]["aliased"] and report["aliasing"]["aliased"], own["aliasing"]
-    assert not np.any(loops.accepted & (session == "run"))
-    assert own["counts"]["loop_factors"] == 0
-    assert "aliased" in own["no_loop_reason"]
     shutil.rmtree(tmp_path / "a" / "log")

@@ -48,13 +48,7 @@ from decod_rs.run_files import (
     write_landmarks_csv,
     write_loops_csv,
 )
-from decod_rs.selection import (
-    aliasing,
-    effective_db_origin,
-    path_along,
-    select_loops,
-    why_no_loop,
-)
+from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import (
     SequentialFactors,
     same_boundary,
@@ -898,7 +892,6 @@ def _report(
         "extraction_rejections": summary.rejections,
         "extraction_rejection_messages": ex.rejection_messages[:200],
         "query_rejections": rejected,
-        "aliasing": aliasing(matched.results).report(),
         "sequential": None if seq is None else seq.report(),
         "optimisation": {
             "nodes": int(correction.node_stamps.size),

@@ -30,7 +30,7 @@ from decod_rs.changes import (
 from decod_rs.config import Config
 from decod_rs.joints import Joint
 from decod_rs.run_files import LoopTable
-from decod_rs.selection import aliasing, path_along
+from decod_rs.selection import path_along
 from decod_rs.survey import (
     CrossSession,
     Survey,
@@ -177,7 +177,6 @@ class Reinspection:
             "accepted": int(sum(r.accepted for r in c.results)),
             "kept": len(c.kept),
             "rejections": rejected,
-            "aliasing": aliasing(c.results).report(),
             "placed_in_survey_frame": self.placed,
             "survey_from_odometry": np.asarray(c.survey_from_odometry).round(6).tolist(),
         }

@@ -27,18 +27,6 @@ other (both 12 m off, 40 m of path apart) passed every per-query test; this gate
 them. The tolerance term is the boundary-origin noise (detections move by ~10 cm between
 views, DESIGN.md), the drift term the odometry's relative error per metre: set it above
 what the odometry can do (a frontend that stalls along the axis needs up to 1).
-
-An aliased corridor (:func:`aliasing`): where nearly every query whose best candidate is
-beyond chance is *not unique*, the boundaries repeat, and the few that look unique are more
-likely repeats whose twin was not detected than distinct places. In the simulated pipe with
-identical joints and 2 m of drift over 30 m, 24 of 28 such queries were not unique; three
-others matched a wall feature (0.6-0.9 m from a joint) detected once on the outbound pass
-to its copy one joint spacing (2.4 m) further, with K = 10-15 against runner-ups of K = 2-4.
-They agreed with each other and, with 2 m of drift, with the odometry, and the position
-prior (:mod:`decod_rs.disambiguation`) then placed three more queries the same 2.4 m off:
-six wrong loops kept, nothing per pair or per set gave them away. Re-inspecting that pipe
-against a survey, the same (83 of 86 not unique, two wrong pairs that agree). Such a
-corridor keeps no loop (reason ``aliased``).
 """
 
 from __future__ import annotations
@@ -55,12 +43,8 @@ from decod_rs._core import QueryResult
 FloatArray = NDArray[np.float64]
 
 __all__ = [
-    "ALIASED_FRACTION",
-    "ALIASED_MIN_QUERIES",
-    "Aliasing",
     "LoopEvidence",
     "Selection",
-    "aliasing",
     "effective_db_origin",
     "path_along",
     "select_by_config",
@@ -68,61 +52,6 @@ __all__ = [
     "select_loops",
     "why_no_loop",
 ]
-
-#: The share of not-unique queries, among those whose best candidate is beyond chance, from
-#: which a corridor is aliased (module docs). Measured: with identical joints 0.86 within a
-#: run (24 of 28; 2 m of drift over 30 m) and 0.93-0.99 in the matrix cell and against a
-#: survey (80-112 queries); every other cell of the generalisation matrix with 20 or more
-#: such queries at most 0.50 (a 6 m shield tunnel whose descriptor spans three rings). At 20
-#: queries 0.75 lies 2.2 binomial standard deviations above 0.5 and below 0.9.
-ALIASED_FRACTION = 0.75
-#: Fewer such queries say too little about the corridor (at 8, one standard deviation is
-#: 0.18); the 16-beam pe runs have 1-8, of which up to all are not unique.
-ALIASED_MIN_QUERIES = 20
-
-
-@dataclass(frozen=True)
-class Aliasing:
-    """How ambiguous a corridor's matches are: ``strong`` queries had a best candidate beyond
-    chance (accepted by the matcher, or not unique), ``not_unique`` of them were not unique."""
-
-    strong: int
-    not_unique: int
-
-    @property
-    def fraction(self) -> float:
-        return self.not_unique / self.strong if self.strong else 0.0
-
-    @property
-    def aliased(self) -> bool:
-        return self.strong >= ALIASED_MIN_QUERIES and self.fraction >= ALIASED_FRACTION
-
-    def report(self) -> dict[str, Any]:
-        return {
-            "strong_queries": self.strong,
-            "not_unique": self.not_unique,
-            "fraction": round(self.fraction, 4),
-            "aliased": self.aliased,
-            "threshold": ALIASED_FRACTION,
-        }
-
-
-def aliasing(results: Sequence[QueryResult]) -> Aliasing:
-    """The ambiguity of ``results`` (module docs)."""
-    not_unique = sum(1 for r in results if r.rejection == "not_unique")
-    accepted = sum(1 for r in results if r.accepted)
-    return Aliasing(strong=accepted + not_unique, not_unique=not_unique)
-
-
-def _drop_if_aliased(
-    results: Sequence[QueryResult], keep: list[bool], reasons: list[str]
-) -> tuple[list[bool], list[str]]:
-    """No loop stays in an aliased corridor; the loops that would have get ``aliased``."""
-    if not aliasing(results).aliased:
-        return keep, reasons
-    return [False] * len(keep), [
-        "aliased" if ok else why for ok, why in zip(keep, reasons, strict=True)
-    ]
 
 
 @dataclass(frozen=True)
@@ -255,8 +184,7 @@ def select_loops(
     also: Sequence[int] = (),
 ) -> tuple[list[bool], list[str]]:
     """For every query result: whether it stays a loop, and why not (the matcher's own
-    rejection, ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`, or
-    ``aliased``: :func:`aliasing`).
+    rejection, or ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`).
     ``also``: indices of results the matcher rejected that enter the selection as if
     accepted (:mod:`decod_rs.disambiguation`)."""
     along = path_along(scan_stamps, scan_odom)
@@ -285,7 +213,7 @@ def select_loops(
     for k, ok, why in zip(accepted, chosen.kept, chosen.reasons, strict=True):
         keep[k] = ok
         reasons[k] = why
-    return _drop_if_aliased(results, keep, reasons)
+    return keep, reasons
 
 
 def why_no_loop(
@@ -313,9 +241,4 @@ def why_no_loop(
     if back == 0:
         return "the sensor never sampled a boundary on the return pass"
     why = top(query_rejections)
-    if query_rejections.get("aliased"):
-        return (
-            "the corridor is aliased: most queries that matched beyond chance were not unique "
-            f"(report.json aliasing), so no loop is kept (rejections: {why})"
-        )
     return f"all {queries} queries rejected" + (f": {why}" if why else "")

@@ -44,12 +44,7 @@ from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
 from decod_rs.landmark_factor import landmark_factor
 from decod_rs.matching import LandmarkDatabase
-from decod_rs.selection import (
-    LoopEvidence,
-    aliasing,
-    effective_db_origin,
-    select_by_config,
-)
+from decod_rs.selection import LoopEvidence, effective_db_origin, select_by_config
 from decod_rs.tum import interpolate_poses
 
 FloatArray = NDArray[np.float64]
@@ -294,11 +289,6 @@ def _select(
     for p, ok, why, rot_ok in zip(pairs, chosen.kept, chosen.reasons, agree, strict=True):
         keep[p.index] = ok and rot_ok
         reasons[p.index] = why if rot_ok else "inconsistent"
-    if aliasing(results).aliased:
-        # Module docs of decod_rs.selection: the few unique matches of an aliased corridor
-        # are likelier undetected repeats than distinct places.
-        reasons = ["aliased" if ok else why for ok, why in zip(keep, reasons, strict=True)]
-        keep = [False] * len(keep)
     kept = [e.correction for e, p in zip(evidence, pairs, strict=True) if keep[p.index]]
     if kept:
         align[:3, :3] = rotation
