@@ -73,12 +73,35 @@ def test_auto_configuration_closes_loops_where_the_presets_did_not(
         assert report["counts"]["accepted_by_position_prior"] > 0, report["counts"]
 
 
-def test_auto_configuration_gives_the_aliased_pipe_no_loop(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("seed", "world_seed"),
+    [
+        (23, None),
+        # A world whose wall features (0.7-0.9 m from a joint) each pass detects once: before
+        # the rule on single detections (decod_rs.selection.drop_if_untracked) two of them
+        # matched their copies one joint spacing away, and the position prior added five
+        # more, all 2.4 m off.
+        (2, 5),
+    ],
+)
+def test_auto_configuration_gives_the_aliased_pipe_no_loop(
+    seed: int, world_seed: int | None, tmp_path: Path
+) -> None:
     # Every joint identical: any accepted loop would be a guess.
     sim = tmp_path / "sim"
-    simulate("hume", sim, seed=23, length_m=30.0, drift=2.0, identical_joints=True, progress=False)
+    simulate(
+        "hume",
+        sim,
+        seed=seed,
+        world_seed=world_seed,
+        length_m=30.0,
+        drift=2.0,
+        identical_joints=True,
+        progress=False,
+    )
     result, report = _run(sim, tmp_path / "run")
     assert result["loops"]["fine"]["accepted"] == 0, report["query_rejections"]
+    assert result["loops"]["coarse"]["false_positives"] == 0, report["query_rejections"]
     assert report["query_rejections"].get("not_unique", 0) > 0
     # A run without loops says why.
     assert "queries rejected" in report["no_loop_reason"], report["no_loop_reason"]

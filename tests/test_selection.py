@@ -4,15 +4,17 @@ whose right answer is known by construction."""
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
 
 from decod_rs.autoscale import CorridorProbe, derive
 from decod_rs.matching import synthetic_landmark
-from decod_rs.selection import LoopEvidence, select_consistent
+from decod_rs.selection import LoopEvidence, drop_if_untracked, select_consistent
 from decod_rs.sequential import detection_noise_m
-from decod_rs.tracks import group_views
+from decod_rs.tracks import group_views, tracked_loops, views_per_landmark
 
 SPACING_M = 2.4
 DRIFT = 0.05  # the return pass drifts 5 % per metre more than the outbound one
@@ -76,6 +78,41 @@ def test_loops_that_agree_with_each_other_but_not_the_odometry_are_dropped() -> 
 def test_an_isolated_loop_is_uncorroborated() -> None:
     loops = _loops({})[:1]
     assert _select(loops).reasons == ["uncorroborated"]
+
+
+def test_a_loop_set_of_single_detections_alone_is_dropped() -> None:
+    keep, reasons = [True, True, False], ["", "", "not_unique"]
+    # No kept loop joins a tracked boundary: all go, named; the matcher's reasons stay.
+    assert drop_if_untracked(keep, reasons, [False, False, True]) == (
+        [False, False, False],
+        ["untracked", "untracked", "not_unique"],
+    )
+    # One kept loop with a tracked side keeps the whole (consistent) set.
+    assert drop_if_untracked(keep, reasons, [False, True, False]) == (keep, reasons)
+    assert drop_if_untracked(keep, reasons, None) == (keep, reasons)
+    assert drop_if_untracked([], [], []) == ([], [])
+
+
+def test_a_loop_is_tracked_when_either_boundary_has_several_views() -> None:
+    views = views_per_landmark(np.array([0, 0, 1, 2, 2, 2, -1], dtype=np.int64))
+    np.testing.assert_array_equal(views, [2, 2, 1, 3, 3, 3, 1])
+    landmarks = [synthetic_landmark(1, k, stamp=float(k)) for k in range(3)]
+    db_views = np.array([1, 4])
+
+    def result(query: int, candidate: int | None) -> Any:
+        lm = landmarks[query]
+        return SimpleNamespace(
+            query_stamp=lm.submap_stamp, query_origin=lm.origin, candidate_index=candidate
+        )
+
+    query_views = np.array([1, 2, 1])
+    found = tracked_loops(
+        [result(0, 0), result(1, 0), result(2, 1), result(2, None)],
+        landmarks,
+        query_views,
+        db_views,
+    )
+    assert found == [False, True, True, False]
 
 
 def test_detection_noise_is_measured_without_the_drift() -> None:

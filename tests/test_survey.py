@@ -247,4 +247,11 @@ def test_aliased_pipe_gives_no_cross_session_loop(tmp_path: Path) -> None:
     session = np.array(loops.extra["session"])
     assert not np.any(loops.accepted & (session == "survey"))
     assert not any(r["survey_joint_id"] for r in _rows(again / "joints.csv"))
+    # Within the second run too (2 m of drift over 30 m): before the rule on single
+    # detections (decod_rs.selection.drop_if_untracked) it kept six loops, all one joint
+    # spacing off (three wall features detected once per pass, matched to their copies, and
+    # three queries the position prior then placed the same way).
+    assert not np.any(loops.accepted & (session == "run")), loops.extra["reason"]
+    own = json.loads((again / "report.json").read_text())
+    assert own["counts"]["loop_factors"] == 0, own["query_rejections"]
     shutil.rmtree(tmp_path / "a" / "log")

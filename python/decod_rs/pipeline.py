@@ -56,7 +56,7 @@ from decod_rs.sequential import (
     transverse_noise_m,
 )
 from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
-from decod_rs.tracks import group_views, world_origins
+from decod_rs.tracks import group_views, tracked_loops, views_per_landmark, world_origins
 from decod_rs.tum import interpolate_poses, write_tum
 
 FloatArray = NDArray[np.float64]
@@ -285,7 +285,8 @@ def _chainage(
 class _Matched:
     """Stages 2-3: the tracks, every query's Top-1 and which stay loops (and why not);
     ``db_order[i]``: the landmark behind database index ``i``; ``by_prior``: the loops kept
-    by :mod:`decod_rs.disambiguation`."""
+    by :mod:`decod_rs.disambiguation`; ``tracked[k]``: query ``k`` or its Top-1 is a track
+    (:func:`decod_rs.selection.drop_if_untracked`)."""
 
     split: float | None
     tracks: NDArray[np.int64]
@@ -296,6 +297,7 @@ class _Matched:
     reasons: list[str]
     by_prior: frozenset[int] = frozenset()
     pairs: PairMemo | None = None
+    tracked: list[bool] | None = None
 
     @property
     def database(self) -> int:
@@ -358,8 +360,12 @@ def _match_and_select(
     )
     where = world_origins(ex.landmarks, anchors)
     results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split)
-    keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m)
-    return _Matched(split, tracks, results, used_mode, db_order, keep, reasons, pairs=pairs)
+    views = views_per_landmark(tracks)
+    tracked = tracked_loops(results, ex.landmarks, views, views[db_order])
+    keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m, tracked=tracked)
+    return _Matched(
+        split, tracks, results, used_mode, db_order, keep, reasons, pairs=pairs, tracked=tracked
+    )
 
 
 def _resolve(
@@ -384,7 +390,9 @@ def _resolve(
     if not promoted:
         return matched
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
-    keep, reasons = select_loops(matched.results, anchors, *scans, m, also=promoted)
+    keep, reasons = select_loops(
+        matched.results, anchors, *scans, m, also=promoted, tracked=matched.tracked
+    )
     by_prior = frozenset(k for k in promoted if keep[k])
     return replace(matched, keep=keep, reasons=reasons, by_prior=by_prior)
 
@@ -762,7 +770,7 @@ def finish_run(
     if survey is not None:
         # Against the earlier survey: match, keep the consistent pairs, move into its frame.
         t0 = time.perf_counter()
-        stage, correction = _reinspect(survey, ex, scans, correction, cfg)
+        stage, correction = _reinspect(survey, ex, matched.tracks, scans, correction, cfg)
         timings["survey"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -805,6 +813,7 @@ def finish_run(
 def _reinspect(
     survey: Survey,
     ex: _Extracted,
+    tracks: NDArray[np.int64],
     scans: tuple[FloatArray, FloatArray],
     correction: CorrectionResult,
     cfg: Config,
@@ -812,7 +821,8 @@ def _reinspect(
     """The run against an earlier survey, and the trajectory moved into its frame when the
     cross-session loops place it (:mod:`decod_rs.reinspection`)."""
     stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
-    stage = reinspect(survey, ex.landmarks, stamps, scans, correction.poses, cfg)
+    views = views_per_landmark(tracks)
+    stage = reinspect(survey, ex.landmarks, views, stamps, scans, correction.poses, cfg)
     if stage.poses is not None:
         correction = replace(correction, poses=stage.poses)
     return stage, correction

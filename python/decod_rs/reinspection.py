@@ -185,14 +185,15 @@ class Reinspection:
 def reinspect(
     survey: Survey,
     landmarks: list[Landmark],
+    views: NDArray[np.int64],
     anchor_stamps: FloatArray,
     scans: tuple[FloatArray, FloatArray],
     corrected: FloatArray,
     cfg: Config,
 ) -> Reinspection:
     """The survey stage (module docs): ``anchor_stamps`` (A,) the run's submap anchors (the
-    landmarks' submap stamps among them), ``scans`` = (stamps, odometry), ``corrected`` the
-    run's own corrected scan poses."""
+    landmarks' submap stamps among them), ``views`` the views of each landmark's track,
+    ``scans`` = (stamps, odometry), ``corrected`` the run's own corrected scan poses."""
     # Pairs are judged on the run's own corrected anchors (its loops removed most drift).
     own = (
         interpolate_poses(scans[0], corrected, anchor_stamps)
@@ -200,6 +201,6 @@ def reinspect(
         else np.zeros((0, 4, 4))
     )
     by_stamp = {float(s): p for s, p in zip(anchor_stamps, own, strict=True)}
-    cross = cross_session(survey, landmarks, by_stamp, path_along(*scans), cfg)
+    cross = cross_session(survey, landmarks, by_stamp, path_along(*scans), cfg, views)
     poses = place_in_survey(cross, landmarks, (scans[0], corrected), anchor_stamps, cfg)
     return Reinspection(cross, poses)

@@ -44,7 +44,13 @@ from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
 from decod_rs.landmark_factor import landmark_factor
 from decod_rs.matching import LandmarkDatabase
-from decod_rs.selection import LoopEvidence, effective_db_origin, select_by_config
+from decod_rs.selection import (
+    LoopEvidence,
+    drop_if_untracked,
+    effective_db_origin,
+    select_by_config,
+)
+from decod_rs.tracks import tracked_loops, views_per_landmark
 from decod_rs.tum import interpolate_poses
 
 FloatArray = NDArray[np.float64]
@@ -265,8 +271,10 @@ def _select(
     pairs: list[_Pair],
     along: Any,
     matching: Any,
+    tracked: list[bool] | None = None,
 ) -> tuple[list[bool], list[str], FloatArray]:
-    """Which accepted pairs stay (module docs, step 2) and the initial alignment."""
+    """Which accepted pairs stay (module docs, step 2) and the initial alignment;
+    ``tracked``: :func:`decod_rs.selection.drop_if_untracked`."""
     keep = [False] * len(results)
     reasons = [r.rejection or "" for r in results]
     align = np.eye(4)
@@ -289,6 +297,7 @@ def _select(
     for p, ok, why, rot_ok in zip(pairs, chosen.kept, chosen.reasons, agree, strict=True):
         keep[p.index] = ok and rot_ok
         reasons[p.index] = why if rot_ok else "inconsistent"
+    keep, reasons = drop_if_untracked(keep, reasons, tracked)
     kept = [e.correction for e, p in zip(evidence, pairs, strict=True) if keep[p.index]]
     if kept:
         align[:3, :3] = rotation
@@ -372,15 +381,22 @@ def cross_session(
     anchors: dict[float, FloatArray],
     along: Any,
     cfg: Config,
+    views: NDArray[np.int64] | None = None,
 ) -> CrossSession:
     """Steps 1-2 (module docs): every landmark against the survey, then the consistent set.
     ``anchors``: the run's anchor stamp -> odometry pose (the frame pairs are judged in);
-    ``along``: path length along the run's odometry at a stamp."""
+    ``along``: path length along the run's odometry at a stamp; ``views``: the views of each
+    landmark's track (a pair between boundaries each detected once does not stand alone:
+    :func:`decod_rs.selection.drop_if_untracked`; None: not applied)."""
     db = LandmarkDatabase(cfg)
     db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], survey_origins(survey))
     results = db.query_batch(landmarks, cross_session=True) if landmarks else []
     pairs = _pairs(survey, landmarks, results, anchors)
-    keep, reasons, align = _select(survey, results, pairs, along, cfg.matching)
+    tracked = None
+    if views is not None:
+        survey_views = views_per_landmark(np.asarray(survey.joint_ids, dtype=np.int64))
+        tracked = tracked_loops(results, landmarks, views, survey_views)
+    keep, reasons, align = _select(survey, results, pairs, along, cfg.matching, tracked)
     return CrossSession(survey, results, keep, reasons, align)
 
 

@@ -27,11 +27,17 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from decod_rs._core import Landmark
+from decod_rs._core import Landmark, QueryResult
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["candidate_links", "group_views", "world_origins"]
+__all__ = [
+    "candidate_links",
+    "group_views",
+    "tracked_loops",
+    "views_per_landmark",
+    "world_origins",
+]
 
 
 def world_origins(landmarks: Sequence[Landmark], anchors: dict[float, FloatArray]) -> FloatArray:
@@ -104,3 +110,35 @@ def group_views(
     for k in np.argsort(stamps, kind="stable"):
         ids[k] = first.setdefault(roots[k], len(first))
     return ids
+
+
+def views_per_landmark(tracks: NDArray[np.int64]) -> NDArray[np.int64]:
+    """For every landmark, how many views (submaps of its pass) its track holds."""
+    _, where, counts = np.unique(
+        np.asarray(tracks, dtype=np.int64), return_inverse=True, return_counts=True
+    )
+    return np.asarray(counts[where], dtype=np.int64)
+
+
+def tracked_loops(
+    results: Sequence[QueryResult],
+    landmarks: Sequence[Landmark],
+    query_views: NDArray[np.int64],
+    db_views: NDArray[np.int64],
+) -> list[bool]:
+    """Per query result: whether its query boundary (``query_views``, per landmark) or its
+    Top-1 (``db_views``, per database index) was seen from two or more submaps of its pass,
+    i.e. is a track rather than a single detection."""
+    index = {
+        (float(lm.submap_stamp), tuple(float(v) for v in lm.origin)): k
+        for k, lm in enumerate(landmarks)
+    }
+    out = []
+    for r in results:
+        q = index.get((float(r.query_stamp), tuple(float(v) for v in r.query_origin)))
+        d = r.candidate_index
+        out.append(
+            (q is not None and int(query_views[q]) >= 2)
+            or (d is not None and 0 <= d < len(db_views) and int(db_views[d]) >= 2)
+        )
+    return out
