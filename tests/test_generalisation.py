@@ -105,6 +105,20 @@ def test_auto_configuration_gives_the_aliased_pipe_no_loop(
     assert report["query_rejections"].get("not_unique", 0) > 0
     # A run without loops says why.
     assert "queries rejected" in report["no_loop_reason"], report["no_loop_reason"]
+    if world_seed is not None:
+        # Ablation: it is the rule on single detections that keeps this world's loops out.
+        toml = tmp_path / "off.toml"
+        toml.write_text("[matching]\nrequire_tracked_loop = false\n", encoding="utf-8")
+        run_log(
+            sim / "log",
+            tmp_path / "off",
+            imu_topic="/imu",
+            progress=False,
+            plots=False,
+            config_path=toml,
+        )
+        off, _ = evaluate_run(tmp_path / "off", sim / "gt.tum", sim / "joints.json")
+        assert off["loops"]["fine"]["false_positives"] > 0, off["loops"]
 
 
 def test_a_steel_arch_tunnel_seen_by_64_beams_keeps_its_submaps(tmp_path: Path) -> None:

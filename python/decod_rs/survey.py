@@ -393,7 +393,7 @@ def cross_session(
     results = db.query_batch(landmarks, cross_session=True) if landmarks else []
     pairs = _pairs(survey, landmarks, results, anchors)
     tracked = None
-    if views is not None:
+    if views is not None and cfg.matching.require_tracked_loop:
         survey_views = views_per_landmark(np.asarray(survey.joint_ids, dtype=np.int64))
         tracked = tracked_loops(results, landmarks, views, survey_views)
     keep, reasons, align = _select(survey, results, pairs, along, cfg.matching, tracked)
