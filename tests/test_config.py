@@ -22,6 +22,11 @@ def test_toml_overrides_and_errors_name_the_parameter(tmp_path):
     good = tmp_path / "good.toml"
     good.write_text("[matching]\nmin_inliers = 15\n")
     assert decod_rs.load_config(good, preset="pipe").matching.min_inliers == 15
+    # The rule on single detections is on unless a config turns it off (ablation).
+    assert decod_rs.load_config(preset="tunnel").matching.require_tracked_loop is True
+    off = tmp_path / "off.toml"
+    off.write_text("[matching]\nrequire_tracked_loop = false\n")
+    assert decod_rs.load_config(off).matching.require_tracked_loop is False
     bad = tmp_path / "bad.toml"
     bad.write_text("[matching]\nmin_inlier = 15\n")
     with pytest.raises(decod_rs.ConfigError, match=r"matching\.min_inlier"):

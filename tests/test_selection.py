@@ -10,6 +10,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from decod_rs.aliasing import (
+    ALIASED_MIN_QUERIES,
+    ALIASED_NEAR_TIE_SHARE,
+    aliasing,
+    drop_if_aliased,
+)
 from decod_rs.autoscale import CorridorProbe, derive
 from decod_rs.matching import synthetic_landmark
 from decod_rs.selection import LoopEvidence, drop_if_untracked, select_consistent
@@ -113,6 +119,32 @@ def test_a_loop_is_tracked_when_either_boundary_has_several_views() -> None:
         db_views,
     )
     assert found == [False, True, True, False]
+
+
+def _ambiguous(ratios: list[float], other: int = 0) -> list[Any]:
+    """Stand-ins for query results: ``not_unique`` ones with runner-up / best inlier ratios
+    ``ratios`` (best 20 inliers), and ``other`` accepted ones."""
+    return [
+        SimpleNamespace(rejection="not_unique", inliers=20, runner_up_inliers=round(20 * r))
+        for r in ratios
+    ] + [SimpleNamespace(rejection=None, inliers=30, runner_up_inliers=3)] * other
+
+
+def test_a_corridor_whose_runner_ups_tie_with_the_best_is_aliased() -> None:
+    n = ALIASED_MIN_QUERIES
+    ties = math.ceil(ALIASED_NEAR_TIE_SHARE * n)
+    # Identical joints: near ties (>= 90 % of the best's inliers) are common.
+    found = aliasing(_ambiguous([0.95] * ties + [0.6] * (n - ties), other=5))
+    assert (found.ambiguous, found.near_ties) == (n, ties) and found.aliased
+    # One near tie fewer: not aliased; too few ambiguous queries: not aliased either.
+    assert not aliasing(_ambiguous([0.95] * (ties - 1) + [0.6] * (n - ties + 1))).aliased
+    assert not aliasing(_ambiguous([1.0] * (n - 1))).aliased
+    # Rings that share structure but differ (the shield): ambiguous, rarely tied.
+    assert not aliasing(_ambiguous([0.7] * 100 + [0.9] * 20)).aliased
+    keep, reasons = [True, False], ["", "not_unique"]
+    aliased = _ambiguous([1.0] * n)
+    assert drop_if_aliased(aliased, keep, reasons) == ([False, False], ["aliased", "not_unique"])
+    assert drop_if_aliased(_ambiguous([0.5] * n), keep, reasons) == (keep, reasons)
 
 
 def test_detection_noise_is_measured_without_the_drift() -> None:

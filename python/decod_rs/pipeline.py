@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.aliasing import aliasing
 from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
 from decod_rs.disambiguation import CorrectedFrame, near_loops, resolve_with_prior
@@ -906,6 +907,7 @@ def _report(
         "extraction_rejections": summary.rejections,
         "extraction_rejection_messages": ex.rejection_messages[:200],
         "query_rejections": rejected,
+        "aliasing": aliasing(matched.results).report(),
         "sequential": None if seq is None else seq.report(),
         "optimisation": {
             "nodes": int(correction.node_stamps.size),

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import Landmark
+from decod_rs.aliasing import aliasing
 from decod_rs.changes import (
     ChangePair,
     changes_summary,
@@ -177,6 +178,7 @@ class Reinspection:
             "accepted": int(sum(r.accepted for r in c.results)),
             "kept": len(c.kept),
             "rejections": rejected,
+            "aliasing": aliasing(c.results).report(),
             "placed_in_survey_frame": self.placed,
             "survey_from_odometry": np.asarray(c.survey_from_odometry).round(6).tolist(),
         }

@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import QueryResult
+from decod_rs.aliasing import drop_if_aliased
 
 FloatArray = NDArray[np.float64]
 
@@ -213,8 +214,9 @@ def select_loops(
     tracked: Sequence[bool] | None = None,
 ) -> tuple[list[bool], list[str]]:
     """For every query result: whether it stays a loop, and why not (the matcher's own
-    rejection, ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`, or
-    ``untracked``: :func:`drop_if_untracked` with ``tracked``). ``also``: indices of results
+    rejection, ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`,
+    ``aliased``: :func:`decod_rs.aliasing.drop_if_aliased`, or ``untracked``:
+    :func:`drop_if_untracked` with ``tracked``). ``also``: indices of results
     the matcher rejected that enter the selection as if accepted
     (:mod:`decod_rs.disambiguation`)."""
     along = path_along(scan_stamps, scan_odom)
@@ -243,6 +245,7 @@ def select_loops(
     for k, ok, why in zip(accepted, chosen.kept, chosen.reasons, strict=True):
         keep[k] = ok
         reasons[k] = why
+    keep, reasons = drop_if_aliased(results, keep, reasons)
     return drop_if_untracked(keep, reasons, tracked)
 
 
@@ -271,4 +274,9 @@ def why_no_loop(
     if back == 0:
         return "the sensor never sampled a boundary on the return pass"
     why = top(query_rejections)
+    if query_rejections.get("aliased"):
+        return (
+            "the corridor is aliased: its ambiguous queries' runner-ups match as well as their "
+            f"best (report.json aliasing), so no loop is kept (rejections: {why})"
+        )
     return f"all {queries} queries rejected" + (f": {why}" if why else "")

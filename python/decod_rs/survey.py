@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.aliasing import drop_if_aliased
 from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
 from decod_rs.landmark_factor import landmark_factor
@@ -297,6 +298,7 @@ def _select(
     for p, ok, why, rot_ok in zip(pairs, chosen.kept, chosen.reasons, agree, strict=True):
         keep[p.index] = ok and rot_ok
         reasons[p.index] = why if rot_ok else "inconsistent"
+    keep, reasons = drop_if_aliased(results, keep, reasons)
     keep, reasons = drop_if_untracked(keep, reasons, tracked)
     kept = [e.correction for e, p in zip(evidence, pairs, strict=True) if keep[p.index]]
     if kept:
