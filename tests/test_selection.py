@@ -14,11 +14,15 @@ from decod_rs.aliasing import (
     ALIASED_MIN_QUERIES,
     ALIASED_NEAR_TIE_SHARE,
     aliasing,
-    drop_if_aliased,
 )
 from decod_rs.autoscale import CorridorProbe, derive
 from decod_rs.matching import synthetic_landmark
-from decod_rs.selection import LoopEvidence, drop_if_untracked, select_consistent
+from decod_rs.selection import (
+    LoopEvidence,
+    drop_if_aliased,
+    drop_if_untracked,
+    select_consistent,
+)
 from decod_rs.sequential import detection_noise_m
 from decod_rs.tracks import group_views, tracked_loops, views_per_landmark
 

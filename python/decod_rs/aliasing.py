@@ -12,8 +12,9 @@ So a corridor is *aliased* when, among its ambiguous queries (``not_unique``: be
 runner-up both beyond chance, the best not significantly ahead), the share of *near ties*
 (the runner-up has at least :data:`NEAR_TIE` of the best's inliers) is at least
 :data:`ALIASED_NEAR_TIE_SHARE`, over at least :data:`ALIASED_MIN_QUERIES` of them; an aliased
-corridor keeps no loop (reason ``aliased``), within a run and against a survey. Measured on
-the simulated corridors, every round of a run (the first and the rebuilt one):
+corridor keeps no loop (reason ``aliased``, :func:`decod_rs.selection.drop_if_aliased`),
+within a run and against a survey. Measured on the simulated corridors, every round of a
+run (the first and the rebuilt one):
 
 - pipe with identical joints, 30 m, 2 and 3 m of drift, auto: 0.43-0.55 near ties (77-125
   ambiguous queries), the matrix cell 0.47-0.54. Before this rule (and the one on single
@@ -44,7 +45,6 @@ __all__ = [
     "NEAR_TIE",
     "Aliasing",
     "aliasing",
-    "drop_if_aliased",
 ]
 
 #: A near tie: the runner-up has at least this share of the best's inliers.
@@ -89,14 +89,3 @@ def aliasing(results: Sequence[QueryResult]) -> Aliasing:
     ambiguous = [r for r in results if r.rejection == "not_unique" and r.inliers > 0]
     ties = sum(1 for r in ambiguous if r.runner_up_inliers >= NEAR_TIE * r.inliers)
     return Aliasing(len(ambiguous), ties)
-
-
-def drop_if_aliased(
-    results: Sequence[QueryResult], keep: list[bool], reasons: list[str]
-) -> tuple[list[bool], list[str]]:
-    """No loop stays in an aliased corridor: the loops that would have get ``aliased``."""
-    if not aliasing(results).aliased:
-        return keep, reasons
-    return [False] * len(keep), [
-        "aliased" if ok else why for ok, why in zip(keep, reasons, strict=True)
-    ]

@@ -362,11 +362,7 @@ def _match_and_select(
     where = world_origins(ex.landmarks, anchors)
     results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split)
     views = views_per_landmark(tracks)
-    tracked = (
-        tracked_loops(results, ex.landmarks, views, views[db_order])
-        if m.require_tracked_loop
-        else None
-    )
+    tracked = tracked_loops(results, ex.landmarks, views, views[db_order])
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m, tracked=tracked)
     return _Matched(
         split, tracks, results, used_mode, db_order, keep, reasons, pairs=pairs, tracked=tracked

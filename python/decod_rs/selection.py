@@ -53,14 +53,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import QueryResult
-from decod_rs.aliasing import drop_if_aliased
+from decod_rs.aliasing import aliasing
 
 FloatArray = NDArray[np.float64]
 
 __all__ = [
     "LoopEvidence",
     "Selection",
+    "drop_if_aliased",
     "drop_if_untracked",
+    "drop_unsafe_sets",
     "effective_db_origin",
     "path_along",
     "select_by_config",
@@ -191,6 +193,19 @@ def select_by_config(loops: list[LoopEvidence], matching: Any) -> Selection:
     )
 
 
+def _drop_all(keep: list[bool], reasons: list[str], why: str) -> tuple[list[bool], list[str]]:
+    """No loop stays; those that would have get ``why``."""
+    return [False] * len(keep), [why if ok else was for ok, was in zip(keep, reasons, strict=True)]
+
+
+def drop_if_aliased(
+    results: Sequence[QueryResult], keep: list[bool], reasons: list[str]
+) -> tuple[list[bool], list[str]]:
+    """No loop stays in an aliased corridor (:mod:`decod_rs.aliasing`); the loops that would
+    have get ``aliased``."""
+    return _drop_all(keep, reasons, "aliased") if aliasing(results).aliased else (keep, reasons)
+
+
 def drop_if_untracked(
     keep: list[bool], reasons: list[str], tracked: Sequence[bool] | None
 ) -> tuple[list[bool], list[str]]:
@@ -199,9 +214,21 @@ def drop_if_untracked(
     ``untracked``. ``tracked=None``: nothing is dropped."""
     if tracked is None or any(ok and t for ok, t in zip(keep, tracked, strict=True)):
         return keep, reasons
-    return [False] * len(keep), [
-        "untracked" if ok else why for ok, why in zip(keep, reasons, strict=True)
-    ]
+    return _drop_all(keep, reasons, "untracked")
+
+
+def drop_unsafe_sets(
+    results: Sequence[QueryResult],
+    keep: list[bool],
+    reasons: list[str],
+    tracked: Sequence[bool] | None,
+    matching: Any,
+) -> tuple[list[bool], list[str]]:
+    """The guards on a whole loop set, within a run and against a survey: an aliased
+    corridor (:func:`drop_if_aliased`), then single detections alone
+    (:func:`drop_if_untracked`, unless ``matching.require_tracked_loop`` is off)."""
+    keep, reasons = drop_if_aliased(results, keep, reasons)
+    return drop_if_untracked(keep, reasons, tracked if matching.require_tracked_loop else None)
 
 
 def select_loops(
@@ -214,10 +241,9 @@ def select_loops(
     tracked: Sequence[bool] | None = None,
 ) -> tuple[list[bool], list[str]]:
     """For every query result: whether it stays a loop, and why not (the matcher's own
-    rejection, ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`,
-    ``aliased``: :func:`decod_rs.aliasing.drop_if_aliased`, or ``untracked``:
-    :func:`drop_if_untracked` with ``tracked``). ``also``: indices of results
-    the matcher rejected that enter the selection as if accepted
+    rejection, ``inconsistent`` / ``uncorroborated`` from :func:`select_consistent`, or
+    ``aliased`` / ``untracked`` from :func:`drop_unsafe_sets` with ``tracked``). ``also``:
+    indices of results the matcher rejected that enter the selection as if accepted
     (:mod:`decod_rs.disambiguation`)."""
     along = path_along(scan_stamps, scan_odom)
 
@@ -245,8 +271,7 @@ def select_loops(
     for k, ok, why in zip(accepted, chosen.kept, chosen.reasons, strict=True):
         keep[k] = ok
         reasons[k] = why
-    keep, reasons = drop_if_aliased(results, keep, reasons)
-    return drop_if_untracked(keep, reasons, tracked)
+    return drop_unsafe_sets(results, keep, reasons, tracked, matching)
 
 
 def why_no_loop(

@@ -40,14 +40,13 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
-from decod_rs.aliasing import drop_if_aliased
 from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
 from decod_rs.landmark_factor import landmark_factor
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.selection import (
     LoopEvidence,
-    drop_if_untracked,
+    drop_unsafe_sets,
     effective_db_origin,
     select_by_config,
 )
@@ -275,7 +274,7 @@ def _select(
     tracked: list[bool] | None = None,
 ) -> tuple[list[bool], list[str], FloatArray]:
     """Which accepted pairs stay (module docs, step 2) and the initial alignment;
-    ``tracked``: :func:`decod_rs.selection.drop_if_untracked`."""
+    ``tracked``: :func:`decod_rs.selection.drop_unsafe_sets`."""
     keep = [False] * len(results)
     reasons = [r.rejection or "" for r in results]
     align = np.eye(4)
@@ -298,8 +297,7 @@ def _select(
     for p, ok, why, rot_ok in zip(pairs, chosen.kept, chosen.reasons, agree, strict=True):
         keep[p.index] = ok and rot_ok
         reasons[p.index] = why if rot_ok else "inconsistent"
-    keep, reasons = drop_if_aliased(results, keep, reasons)
-    keep, reasons = drop_if_untracked(keep, reasons, tracked)
+    keep, reasons = drop_unsafe_sets(results, keep, reasons, tracked, matching)
     kept = [e.correction for e, p in zip(evidence, pairs, strict=True) if keep[p.index]]
     if kept:
         align[:3, :3] = rotation
@@ -395,7 +393,7 @@ def cross_session(
     results = db.query_batch(landmarks, cross_session=True) if landmarks else []
     pairs = _pairs(survey, landmarks, results, anchors)
     tracked = None
-    if views is not None and cfg.matching.require_tracked_loop:
+    if views is not None:
         survey_views = views_per_landmark(np.asarray(survey.joint_ids, dtype=np.int64))
         tracked = tracked_loops(results, landmarks, views, survey_views)
     keep, reasons, align = _select(survey, results, pairs, along, cfg.matching, tracked)
