@@ -20,7 +20,7 @@ from decod_rs.pipeline import run_log
 from decod_rs.run_files import read_loops_csv
 from decod_rs.sim import simulate
 from decod_rs.sim.changes import changed_joints
-from decod_rs.survey import SURVEY_FILE, load_survey, survey_origins
+from decod_rs.survey import SURVEY_FILE, chainage_along, load_survey, survey_origins
 
 LENGTH_M = 30.0
 WORLD = 21
@@ -67,6 +67,22 @@ def _true_joint(sim: Path, chainage: float, tolerance_m: float = 0.3) -> int | N
     xs, x0 = _true_chainage(sim)
     k = int(np.argmin(np.abs(xs - x0 - chainage)))
     return k if abs(xs[k] - x0 - chainage) < tolerance_m else None
+
+
+def test_chainage_along_the_survey_path_extends_past_its_ends() -> None:
+    # A path 10 m along x, then 5 m along y; sampled every 0.5 m.
+    leg1 = np.c_[np.arange(0.0, 10.01, 0.5), np.zeros(21), np.zeros(21)]
+    leg2 = np.c_[np.full(10, 10.0), np.arange(0.5, 5.01, 0.5), np.zeros(10)]
+    path = np.vstack([leg1, leg2])
+    points = np.array(
+        [
+            [3.2, 0.4, -0.2],  # beside the first leg
+            [10.3, 2.0, 0.0],  # beside the second leg
+            [10.0, 7.3, 0.1],  # 2.3 m past the far end: a joint seen from the turnaround
+            [-1.5, 0.2, 0.0],  # behind the start
+        ]
+    )
+    np.testing.assert_allclose(chainage_along(path, points), [3.2, 12.0, 17.3, -1.5], atol=1e-9)
 
 
 def test_second_run_lands_in_the_survey_frame(runs: dict[str, Path]) -> None:

@@ -161,7 +161,11 @@ def load_survey(run_dir: str | Path) -> Survey:
 
 def chainage_along(path: FloatArray, points: FloatArray) -> FloatArray:
     """Arclength (m) along the polyline ``path`` (P, 3) at the projection of each of
-    ``points`` (N, 3) onto its nearest segment."""
+    ``points`` (N, 3) onto its nearest segment. Beyond either end the first or last segment
+    is extended, as the run's own registry does (``pipeline._chainage``): a joint seen past
+    the far end gets a chainage past the path's length, not the length itself (a
+    re-inspection's view of the survey's last joint, 2.3 m beyond the turnaround, was put
+    at the turnaround)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if path.shape[0] < 2:
         return np.zeros(pts.shape[0])
@@ -169,12 +173,17 @@ def chainage_along(path: FloatArray, points: FloatArray) -> FloatArray:
     seg = b - a
     length = np.linalg.norm(seg, axis=1)
     start = np.concatenate([[0.0], np.cumsum(length)])[:-1]
+    last = seg.shape[0] - 1
     out = np.empty(pts.shape[0])
     for k, x in enumerate(pts):
-        t = np.clip(np.einsum("ij,ij->i", x - a, seg) / np.maximum(length**2, 1e-12), 0.0, 1.0)
+        raw = np.einsum("ij,ij->i", x - a, seg) / np.maximum(length**2, 1e-12)
+        t = np.clip(raw, 0.0, 1.0)
         dist = np.linalg.norm(a + t[:, None] * seg - x, axis=1)
         s = int(np.argmin(dist))
-        out[k] = start[s] + t[s] * length[s]
+        along = raw[s]
+        if not ((s == 0 and along < 0.0) or (s == last and along > 1.0)):
+            along = t[s]
+        out[k] = start[s] + along * length[s]
     return out
 
 
