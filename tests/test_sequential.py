@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from decod_rs._core import Landmark
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
+from decod_rs.sequential import RIB_POLARITY, boundary_polarity
 from decod_rs.sim import simulate
 from decod_rs.tum import interpolate_poses, read_tum
 
@@ -106,3 +108,34 @@ def test_joints_closer_than_the_drift_of_a_submap_interval_make_no_wrong_track(
     # Every track holds views of one joint: its views lie within a few cm in the true world,
     # never a joint spacing (1 m) apart.
     assert max(spans) < 0.3, sorted(spans)[-5:]
+
+
+def _view(centre_m: float, rng: np.random.Generator) -> Landmark:
+    """A view whose two rows about the boundary stand ``centre_m`` off a wall of 1 cm
+    roughness (negative: inwards, a rib)."""
+    d = rng.normal(0.0, 0.01, (16, 256))
+    d[7:9] += centre_m
+    return Landmark(
+        0.0,
+        np.zeros(3),
+        np.array([1.0, 0.0, 0.0]),
+        np.array([0.0, 0.0, -1.0]),
+        d,
+        np.ones((16, 256), dtype=bool),
+        cell_z_m=0.25,
+        perimeter_m=15.0,
+    )
+
+
+def test_boundary_polarity_tells_ribs_from_grooves() -> None:
+    rng = np.random.default_rng(4)
+    # Steel arches: the surface 3 cm inwards over the boundary rows (the horseshoe measured
+    # -1.05 spread units); a few views of rock clutter do not change the median.
+    ribs = [_view(-0.03, rng) for _ in range(20)] + [_view(0.0, rng) for _ in range(5)]
+    polarity = boundary_polarity(ribs)
+    assert polarity is not None and polarity <= RIB_POLARITY, polarity
+    # Grooves (4 mm outwards) and a plain wall are not ribs.
+    for centre in (0.004, 0.0):
+        polarity = boundary_polarity([_view(centre, rng) for _ in range(20)])
+        assert polarity is not None and polarity > RIB_POLARITY, (centre, polarity)
+    assert boundary_polarity([]) is None
