@@ -51,8 +51,9 @@ from decod_rs.run_files import (
 )
 from decod_rs.selection import effective_db_origin, path_along, select_loops, why_no_loop
 from decod_rs.sequential import (
-    RIB_POLARITY,
     SequentialFactors,
+    at_ribs,
+    axial_offset_m,
     boundary_polarity,
     same_boundary,
     sequential_constraints,
@@ -239,18 +240,14 @@ def _constraints(
     results: list[QueryResult],
     keep: list[bool],
     anchor_stamps: FloatArray,
-    at_ribs_within_m: float = 0.0,
+    cell_z_m: float,
+    ribs: bool,
 ) -> list[LoopConstraint]:
-    """Loop factors of the kept loops; an axial offset under ``at_ribs_within_m`` is taken as
-    0 (:mod:`decod_rs.sequential`, "Axial offset at ribs")."""
+    """Loop factors of the kept loops, the axial offsets as :func:`axial_offset_m` takes them
+    (descriptor rows of ``cell_z_m``)."""
 
     def index(stamp: float) -> int:
         return int(np.argmin(np.abs(anchor_stamps - stamp)))
-
-    def db_origin(r: QueryResult) -> FloatArray:
-        if abs(r.dz_m) < at_ribs_within_m:
-            return np.asarray(r.candidate_origin, dtype=np.float64)
-        return effective_db_origin(r)
 
     return [
         LoopConstraint(
@@ -258,7 +255,7 @@ def _constraints(
             db_index=index(r.candidate_stamp),
             query_origin=np.asarray(r.query_origin, dtype=np.float64),
             query_axis=np.asarray(r.query_axis, dtype=np.float64),
-            db_origin=db_origin(r),
+            db_origin=effective_db_origin(r, axial_offset_m(r.dz_m, cell_z_m, ribs)),
             db_axis=np.asarray(r.candidate_axis, dtype=np.float64),
             inliers=r.inliers,
             score=r.score,
@@ -425,11 +422,12 @@ def _factors(
         ex.landmarks, matched.tracks, anchors, float(cfg.graph.landmark_position_sigma_m)
     )
     polarity = boundary_polarity(ex.landmarks)
-    ribs = polarity is not None and polarity <= RIB_POLARITY
-    within = 0.5 * ex.landmarks[0].cell_z_m if ribs else 0.0
+    cell_z_m = ex.landmarks[0].cell_z_m if ex.landmarks else 0.0
     constraints = [
         replace(c, sigma_transverse_m=across)
-        for c in _constraints(matched.results, matched.keep, anchor_stamps, within)
+        for c in _constraints(
+            matched.results, matched.keep, anchor_stamps, cell_z_m, at_ribs(polarity)
+        )
     ]
     if not cfg.graph.sequential:
         return constraints, None
@@ -442,6 +440,7 @@ def _factors(
         cfg,
         across,
         matched.pairs,
+        polarity=polarity,
     )
     return constraints + seq.constraints, seq
 

@@ -166,12 +166,14 @@ def select_consistent(
     return Selection(kept=kept, reasons=reasons, conflicts=pairs)
 
 
-def effective_db_origin(result: QueryResult) -> FloatArray:
-    """The candidate's origin moved by the verified axial offset, so both origins name the
-    same physical plane (``PairResult.dz_m`` is along the axis in the query's heading)."""
+def effective_db_origin(result: QueryResult, dz_m: float | None = None) -> FloatArray:
+    """The candidate's origin moved by the verified axial offset (``dz_m`` in its place when
+    given), so both origins name the same physical plane (``PairResult.dz_m`` is along the
+    axis in the query's heading)."""
     sign = 1.0 if abs(result.heading_deg) < 90.0 else -1.0
+    dz = result.dz_m if dz_m is None else dz_m
     return np.asarray(result.candidate_origin, dtype=np.float64) + (
-        result.dz_m * sign * np.asarray(result.candidate_axis, dtype=np.float64)
+        dz * sign * np.asarray(result.candidate_axis, dtype=np.float64)
     )
 
 

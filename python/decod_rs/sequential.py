@@ -71,6 +71,8 @@ FloatArray = NDArray[np.float64]
 
 __all__ = [
     "SequentialFactors",
+    "at_ribs",
+    "axial_offset_m",
     "boundary_polarity",
     "detection_noise_m",
     "same_boundary",
@@ -98,7 +100,7 @@ class SequentialFactors:
             "detection_sigma_m": self.sigma_m,
             "transverse_sigma_m": self.sigma_transverse_m,
             "boundary_polarity": self.polarity,
-            "ribs": self.polarity is not None and self.polarity <= RIB_POLARITY,
+            "ribs": at_ribs(self.polarity),
         }
 
 
@@ -130,6 +132,17 @@ def boundary_polarity(landmarks: Sequence[Landmark]) -> float | None:
         if spread > 0:
             values.append(float(centre.mean()) / spread)
     return float(np.median(values)) if values else None
+
+
+def at_ribs(polarity: float | None) -> bool:
+    """Whether a corridor of this :func:`boundary_polarity` has ribs for boundaries."""
+    return polarity is not None and polarity <= RIB_POLARITY
+
+
+def axial_offset_m(dz_m: float, cell_z_m: float, ribs: bool) -> float:
+    """The verification's axial offset ``dz_m`` as a factor uses it: at ribs, 0 within half a
+    descriptor row (``cell_z_m``) of 0 (module docs, "Axial offset at ribs")."""
+    return 0.0 if ribs and abs(dz_m) < 0.5 * cell_z_m else float(dz_m)
 
 
 #: Degrees of freedom (views beyond two per track, summed) below which the detection noise
@@ -196,12 +209,6 @@ def transverse_noise_m(
     return max(float(np.sqrt(sq / dof)), floor_m)
 
 
-def _axial_offset(pair: PairResult, cell_z_m: float, ribs: bool) -> float:
-    """The verification's axial offset between two views of a track; at ribs, 0 within half
-    a descriptor row of 0 (module docs, "Axial offset at ribs")."""
-    return 0.0 if ribs and abs(pair.dz_m) < 0.5 * cell_z_m else float(pair.dz_m)
-
-
 def _verdict(pair: PairResult, matching: Any) -> str:
     """Why a within-pass pair is not one boundary ("" if it is)."""
     if pair.rejection is not None:
@@ -237,11 +244,14 @@ def sequential_constraints(
     cfg: Any,
     sigma_transverse_m: float | None = None,
     pairs: PairMemo | None = None,
+    *,
+    polarity: float | None,
 ) -> SequentialFactors:
     """Factors between consecutive views of every track (module docs). ``path_at(stamp)``:
     path length along the odometry at a stamp (metres); ``sigma_transverse_m``: their sigma
     across the axis (:func:`transverse_noise_m`; None: the same as along it); ``pairs``:
-    the comparisons already made on ``landmarks`` (the track links', earlier rounds')."""
+    the comparisons already made on ``landmarks`` (the track links', earlier rounds');
+    ``polarity``: :func:`boundary_polarity` of ``landmarks``."""
     m = cfg.matching
     where = world_origins(landmarks, anchors)
     stamps = np.array([lm.submap_stamp for lm in landmarks])
@@ -253,8 +263,7 @@ def sequential_constraints(
     loop_sigma = float(cfg.graph.landmark_position_sigma_m)
     floor = float(cfg.boundary.profile_bin_m)
     sigma = min(detection_noise_m(stamps, axial, tracks, floor, loop_sigma), loop_sigma)
-    polarity = boundary_polarity(landmarks)
-    ribs = polarity is not None and polarity <= RIB_POLARITY
+    ribs = at_ribs(polarity)
     out = SequentialFactors(
         constraints=[],
         sigma_m=sigma,
@@ -273,7 +282,7 @@ def sequential_constraints(
     for (a, b), pair in zip(consecutive, results, strict=True):
         why = _verdict(pair, m)
         ok = not why
-        dz = _axial_offset(pair, landmarks[a].cell_z_m, ribs)
+        dz = axial_offset_m(pair.dz_m, landmarks[a].cell_z_m, ribs)
         earlier = np.asarray(landmarks[a].origin) + dz * np.asarray(landmarks[a].axis)
         if ok:
             pose = anchors[stamps[a]]
