@@ -38,8 +38,8 @@ MIN_INLIERS = (6, 12)
 
 
 @pytest.fixture(scope="module")
-def sims(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    root = tmp_path_factory.mktemp("sims")
+def sims(module_dir: Path) -> list[Path]:
+    root = module_dir / "sims"
     out = []
     for seed in SEEDS:
         simulate("hume", root / f"hume{seed}", seed=seed, length_m=LENGTH_M, progress=False)

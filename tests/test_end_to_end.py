@@ -26,8 +26,7 @@ from decod_rs.tum import read_tum
 LENGTH_M = 30.0
 
 
-def _simulate(tmp_path_factory: pytest.TempPathFactory, name: str, **kwargs: object) -> Path:
-    out = tmp_path_factory.mktemp(name)
+def _simulate(out: Path, **kwargs: object) -> Path:
     simulate(out_dir=out / "sim", progress=False, length_m=LENGTH_M, **kwargs)  # type: ignore[arg-type]
     return out / "sim"
 
@@ -39,9 +38,9 @@ def _run(sim: Path, out: Path, preset: str, **kwargs: object) -> dict:
 
 
 @pytest.fixture(scope="module")
-def hume(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def hume(module_dir: Path) -> Path:
     # Crawler reversing back (heading unchanged), 2.5 m of axial drift at the end.
-    return _simulate(tmp_path_factory, "hume", scene="hume", seed=11, drift=2.5)
+    return _simulate(module_dir / "hume", scene="hume", seed=11, drift=2.5)
 
 
 def test_hume_pipe_loops_are_precise_and_remove_the_drift(hume: Path, tmp_path: Path) -> None:
@@ -87,12 +86,10 @@ def test_disabled_loops_return_the_odometry_unchanged(hume: Path, tmp_path: Path
     np.testing.assert_allclose(poses, sim_poses, atol=1e-5)
 
 
-def test_aliased_pipe_yields_no_wrong_loop(tmp_path_factory: pytest.TempPathFactory) -> None:
+def test_aliased_pipe_yields_no_wrong_loop(tmp_path: Path) -> None:
     # Every joint identical: descriptors of different joints agree as well as two views of
     # one joint, so only the uniqueness test stands between the user and a wrong loop.
-    sim = _simulate(
-        tmp_path_factory, "aliased", scene="hume", seed=12, drift=2.5, identical_joints=True
-    )
+    sim = _simulate(tmp_path / "aliased", scene="hume", seed=12, drift=2.5, identical_joints=True)
     result = _run(sim, sim.parent / "run", "pipe", plots=False)
     for tolerance in ("fine", "coarse"):
         assert result["loops"][tolerance]["false_positives"] == 0, result["loops"]

@@ -27,8 +27,8 @@ OUTPUTS = ("odometry.tum", "corrected.tum", "loops.csv", "landmarks.csv", "joint
 
 
 @pytest.fixture(scope="module")
-def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("pipe") / "sim"
+def sim(module_dir: Path) -> Path:
+    out = module_dir / "pipe" / "sim"
     simulate("hume", out, progress=False, length_m=8.0, drift=0.5, ros1=True)
     return out
 

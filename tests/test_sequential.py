@@ -20,8 +20,8 @@ from decod_rs.tum import interpolate_poses, read_tum
 
 
 @pytest.fixture(scope="module")
-def uneven(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    sim = tmp_path_factory.mktemp("uneven") / "sim"
+def uneven(module_dir: Path) -> Path:
+    sim = module_dir / "uneven" / "sim"
     simulate("hume", sim, seed=31, length_m=30.0, drift="legs:-0.05,-0.15", progress=False)
     return sim
 

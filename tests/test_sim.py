@@ -46,8 +46,8 @@ def _quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def hume_log(tmp_path_factory: pytest.TempPathFactory):
-    out = tmp_path_factory.mktemp("hume")
+def hume_log(module_dir: Path):
+    out = module_dir / "hume"
     res = simulate("hume", out, seed=3, drift=0.5, progress=False, **SHORT)
     return res
 

@@ -44,8 +44,8 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("survey")
+def runs(module_dir: Path) -> dict[str, Path]:
+    root = module_dir / "survey"
     first = _sim(root, "sim_survey", seed=WORLD, world_seed=WORLD, drift=0.5)
     second = _sim(
         root, "sim_again", seed=WORLD + 1, world_seed=WORLD, drift=2.0, scene_overrides=CHANGES

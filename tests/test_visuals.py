@@ -46,15 +46,15 @@ PLY_FIELDS = ("x", "y", "z", "red", "green", "blue", "pass", "time", "count")
 
 
 @pytest.fixture(scope="module")
-def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("visuals") / "sim"
+def sim(module_dir: Path) -> Path:
+    out = module_dir / "visuals" / "sim"
     simulate(out_dir=out, progress=False, **SIM)  # type: ignore[arg-type]
     return out
 
 
 @pytest.fixture(scope="module")
-def run(sim: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("run")
+def run(sim: Path, module_dir: Path) -> Path:
+    out = module_dir / "run"
     run_log(
         sim / "log",
         out,
@@ -68,8 +68,8 @@ def run(sim: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def no_loops(sim: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("no_loops")
+def no_loops(sim: Path, module_dir: Path) -> Path:
+    out = module_dir / "no_loops"
     run_log(
         sim / "log",
         out,
@@ -83,8 +83,8 @@ def no_loops(sim: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def tunnel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("tunnel") / "sim"
+def tunnel(module_dir: Path) -> Path:
+    out = module_dir / "tunnel" / "sim"
     simulate(out_dir=out, progress=False, **TUNNEL)  # type: ignore[arg-type]
     return out
 
