@@ -31,6 +31,15 @@
 //!    every distance (slope 0.1 %). Grooves (pipe joints, ring seams) keep every detection
 //!    they had.
 //!
+//! 6. a peak with exactly one *twin* (a candidate of the same sign, at least `TWIN_RATIO` as
+//!    strong, within `TWIN_WINDOW_SIGMAS` large sigmas and the suppression radius, with the
+//!    response of the other sign between them: two bands, not the two edges of one wide
+//!    groove) is one boundary between two bands, placed midway. A ring joint of a segmental lining is a 1.5 cm seam between two bands of bolt
+//!    pockets 8 cm deep, 0.2 m either side (the simulator's shield, after common pocket
+//!    layouts): the pockets, not the seam, give the response, and suppression kept whichever
+//!    band was stronger in that view, 0.2 m from the joint on either side. Several candidates
+//!    (a corrugation, arches) or a weaker neighbour leave the peak where it is.
+//!
 //! The bottom sector masked in the descriptor (`descriptor.bottom_mask_deg`, ground returns
 //! and debris) is left out of the profile too.
 
@@ -45,6 +54,16 @@ const MAX_PROFILE_BINS: usize = 2_000_000;
 /// Peaks closer than this many large sigmas to either end of the data are ignored: the
 /// large Gaussian is one-sided there and the normalised convolution extrapolates.
 const EDGE_MARGIN_SIGMAS: f64 = 3.0;
+
+/// Step 6: a second candidate this strong (fraction of the peak's |DoG|), of the same sign,
+/// within [`TWIN_WINDOW_SIGMAS`] makes the pair twin bands (module doc).
+const TWIN_RATIO: f64 = 0.5;
+/// Step 6: how far a twin may lie, in large DoG sigmas (auto scaling: r / 30). In a 3 m
+/// tunnel 0.8 m (the suppression radius caps it): pocket bands 0.2 m either side of the seam
+/// respond at their edges, 0.33-0.47 m apart. In a 0.3 m pipe 8 cm: a chip or a lateral
+/// connection 0.2-0.3 m from a joint is another feature, not the joint's other half (with
+/// the suppression radius as the window, hume's registry rows moved 0.1 m off their joints).
+const TWIN_WINDOW_SIGMAS: f64 = 8.0;
 
 /// A point unrolled for extraction: axial coordinate, arclength, signed offset.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -189,6 +208,7 @@ pub fn detect_boundaries(
         .collect();
     let candidate_count = candidates.len();
     candidates.sort_by(|&i, &j| dog[j].abs().total_cmp(&dog[i].abs()));
+    let candidates_all = candidates.clone();
     let radius_bins = cfg.nms_radius_m / bin;
     let mut kept: Vec<usize> = Vec::new();
     for b in candidates {
@@ -199,19 +219,28 @@ pub fn detect_boundaries(
             kept.push(b);
         }
     }
+    let twin_bins = radius_bins.min(TWIN_WINDOW_SIGMAS * cfg.dog_sigma_large_m / bin);
+    let refined = |b: usize| {
+        let (l, c, r) = (dog[b - 1].abs(), dog[b].abs(), dog[b + 1].abs());
+        let denom = l - 2.0 * c + r;
+        let shift = if denom.abs() > 1e-18 {
+            (0.5 * (l - r) / denom).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        };
+        zmin + (b as f64 + 0.5 + shift) * bin
+    };
     let peaks = kept
-        .into_iter()
-        .map(|b| {
-            let (l, c, r) = (dog[b - 1].abs(), dog[b].abs(), dog[b + 1].abs());
-            let denom = l - 2.0 * c + r;
-            let shift = if denom.abs() > 1e-18 {
-                (0.5 * (l - r) / denom).clamp(-0.5, 0.5)
-            } else {
-                0.0
+        .iter()
+        .map(|&b| {
+            // 6. Twin bands: the boundary lies midway between them.
+            let z_m = match twin_of(b, &candidates_all, &dog, twin_bins, threshold) {
+                Some(t) => 0.5 * (refined(b) + refined(t)),
+                None => refined(b),
             };
             BoundaryPeak {
-                z_m: zmin + (b as f64 + 0.5 + shift) * bin,
-                strength_m: c,
+                z_m,
+                strength_m: dog[b].abs(),
                 response_m: dog[b],
             }
         })
@@ -225,6 +254,38 @@ pub fn detect_boundaries(
         candidates: candidate_count,
         peaks,
     })
+}
+
+/// Step 6 of the module doc: the one other candidate of the same sign and at least
+/// [`TWIN_RATIO`] of the peak's strength within `window_bins` of peak `b`, with the response
+/// of the other sign beyond `threshold` between them, if there is exactly one
+/// (`candidates`: every candidate, any order).
+fn twin_of(
+    b: usize,
+    candidates: &[usize],
+    dog: &[f64],
+    window_bins: f64,
+    threshold: f64,
+) -> Option<usize> {
+    // Two bands, not the two edges of one wide groove: the response between them turns over
+    // to the other sign, beyond the detection threshold (the wall between the bands).
+    let apart = |c: usize| {
+        let (lo, hi) = (b.min(c), b.max(c));
+        dog[lo..=hi]
+            .iter()
+            .any(|&d| d * dog[b] < 0.0 && d.abs() >= threshold)
+    };
+    let mut twins = candidates.iter().copied().filter(|&c| {
+        c != b
+            && (c as f64 - b as f64).abs() <= window_bins
+            && dog[c] * dog[b] > 0.0
+            && dog[c].abs() >= TWIN_RATIO * dog[b].abs()
+            && apart(c)
+    });
+    match (twins.next(), twins.next()) {
+        (Some(t), None) => Some(t),
+        _ => None,
+    }
 }
 
 /// Step 5 of the module doc: the surface at the peak (small-Gaussian profile) is displaced in
@@ -306,6 +367,66 @@ mod tests {
         // A lobe on the wall at its own level.
         assert!(!displaced_as_response(Some(0.001), 0.003));
         assert!(!displaced_as_response(None, 0.003));
+    }
+
+    /// A tunnel wall with recessed bands `(centre m, half-width m, depth m)`.
+    fn banded(bands: &[(f64, f64, f64)]) -> Vec<ChartPoint> {
+        (0..200_000)
+            .map(|i| {
+                let z = -3.0 + 6.0 * (i as f64 / 200_000.0);
+                let p = (i as f64 * 0.618_033_988_7).fract();
+                let clutter = 1e-3 * ((i * 7919 % 17) as f64 / 8.0 - 1.0);
+                let recess: f64 = bands
+                    .iter()
+                    .filter(|(c, h, _)| (z - c).abs() < *h)
+                    .map(|(_, _, d)| d)
+                    .sum();
+                ChartPoint {
+                    z,
+                    p,
+                    s: recess + clutter,
+                }
+            })
+            .collect()
+    }
+
+    fn peaks_of(bands: &[(f64, f64, f64)]) -> Vec<BoundaryPeak> {
+        let cfg = DecodConfig::tunnel();
+        let contour = ReferenceContour::circle([0.0, 0.0], 3.0);
+        detect_boundaries(&banded(bands), &contour, 30.0, &cfg.boundary)
+            .unwrap()
+            .peaks
+    }
+
+    #[test]
+    fn twin_pocket_bands_put_the_boundary_at_the_seam_between_them() {
+        // A ring seam (1.5 cm, 2 cm wide) at z = 0.5 between bolt-pocket bands 8 and 7.6 cm
+        // deep, 18 cm wide, 0.2 m either side: the simulator's shield joint.
+        let joint = [(0.5, 0.01, 0.015), (0.3, 0.09, 0.08), (0.7, 0.09, 0.076)];
+        let peaks = peaks_of(&joint);
+        assert_eq!(peaks.len(), 1, "{peaks:?}");
+        // A band 18 cm wide responds at its edges (7 cm apart within one large sigma, so
+        // one candidate per band): the midpoint is the seam to within half that.
+        assert!((peaks[0].z_m - 0.5).abs() < 0.04, "{peaks:?}");
+        // One band alone, or beside a much weaker one, stays at that band.
+        let peaks = peaks_of(&[(0.3, 0.09, 0.08)]);
+        assert!((peaks[0].z_m - 0.3).abs() < 0.09, "{peaks:?}");
+        let peaks = peaks_of(&[(0.3, 0.09, 0.08), (0.7, 0.09, 0.02)]);
+        assert!((peaks[0].z_m - 0.3).abs() < 0.09, "{peaks:?}");
+        // Three bands in the radius (a corrugation): no pair, the strongest band stays.
+        let peaks = peaks_of(&[(0.0, 0.09, 0.07), (0.35, 0.09, 0.08), (0.7, 0.09, 0.07)]);
+        assert!((peaks[0].z_m - 0.35).abs() < 0.09, "{peaks:?}");
+        // The two edges of one groove 25 cm wide (two candidates, no wall between them)
+        // are not twins: the peak stays at an edge.
+        let peaks = peaks_of(&[(0.5, 0.125, 0.03)]);
+        assert!((peaks[0].z_m - 0.5).abs() > 0.05, "{peaks:?}");
+        // A groove and a rib (opposite signs) are not twins.
+        let peaks = peaks_of(&[(0.3, 0.09, 0.08), (0.7, 0.09, -0.08)]);
+        let z = peaks[0].z_m;
+        assert!(
+            (z - 0.3).abs() < 0.09 || (z - 0.7).abs() < 0.09,
+            "{peaks:?}"
+        );
     }
 
     #[test]
