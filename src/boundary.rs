@@ -33,8 +33,8 @@
 //!
 //! 6. a groove peak with exactly one *twin* (another groove candidate, at least `TWIN_RATIO` as
 //!    strong, within `TWIN_WINDOW_SIGMAS` large sigmas and the suppression radius, with the
-//!    response of the other sign between them: two bands, not the two edges of one wide
-//!    groove) is one boundary between two bands, placed midway. A ring joint of a segmental lining is a 1.5 cm seam between two bands of bolt
+//!    surface between them back at least halfway to the wall: two bands, not the two edges
+//!    of one wide groove) is one boundary between two bands, placed midway. A ring joint of a segmental lining is a 1.5 cm seam between two bands of bolt
 //!    pockets 8 cm deep, 0.2 m either side (the simulator's shield, after common pocket
 //!    layouts): the pockets, not the seam, give the response, and suppression kept whichever
 //!    band was stronger in that view, 0.2 m from the joint on either side. Several candidates
@@ -68,6 +68,12 @@ const TWIN_RATIO: f64 = 0.5;
 /// half (with the suppression radius as the window, the worst registry joint of hume runs
 /// went from 0.1-1.6 % to 1.6-5 % of its chainage in a partial matrix run).
 const TWIN_WINDOW_SIGMAS: f64 = 8.0;
+/// Step 6: between twin bands the surface comes back to this fraction of the shallower
+/// band's depth (at its response peak) or less: the wall between two bands. Across one wide
+/// groove it stays at the groove's depth. Half: a response peak sits on a band's edge, where
+/// the smoothed surface is about half as deep as the band, so the wall between must come
+/// back further than any point of the band itself.
+const TWIN_RETURN: f64 = 0.5;
 
 /// A point unrolled for extraction: axial coordinate, arclength, signed offset.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -238,7 +244,7 @@ pub fn detect_boundaries(
         .iter()
         .map(|&b| {
             // 6. Twin bands: the boundary lies midway between them.
-            let z_m = match twin_of(b, &candidates_all, &dog, twin_bins, threshold) {
+            let z_m = match twin_of(b, &candidates_all, &dog, &small, twin_bins) {
                 Some(t) => 0.5 * (refined(b) + refined(t)),
                 None => refined(b),
             };
@@ -262,22 +268,22 @@ pub fn detect_boundaries(
 
 /// Step 6 of the module doc: for a groove peak `b` (positive response), the one other groove
 /// candidate of at least [`TWIN_RATIO`] of its strength within `window_bins`, with the
-/// response of the other sign beyond `threshold` between them, if there is exactly one
-/// (`candidates`: every candidate, any order).
+/// `surface` (small-Gaussian profile) between them back to [`TWIN_RETURN`] of the shallower
+/// one's depth or less, if there is exactly one (`candidates`: every candidate, any order).
 fn twin_of(
     b: usize,
     candidates: &[usize],
     dog: &[f64],
+    surface: &[Option<f64>],
     window_bins: f64,
-    threshold: f64,
 ) -> Option<usize> {
-    // Two bands, not the two edges of one wide groove: the response between them turns over
-    // to the other sign, beyond the detection threshold (the wall between the bands).
+    // Two bands, not the two edges of one wide groove: between them the surface (small-
+    // Gaussian profile) comes back at least halfway to the wall.
+    let depth = |j: usize| surface[j].unwrap_or(0.0);
     let apart = |c: usize| {
         let (lo, hi) = (b.min(c), b.max(c));
-        dog[lo..=hi]
-            .iter()
-            .any(|&d| d * dog[b] < 0.0 && d.abs() >= threshold)
+        let half = TWIN_RETURN * depth(b).min(depth(c));
+        (lo..=hi).any(|j| surface[j].is_some_and(|v| v <= half))
     };
     if dog[b] <= 0.0 {
         return None; // ribs have no twins (module doc, step 6)
