@@ -34,10 +34,11 @@
 //! 6. a groove peak with exactly one *twin* (another groove candidate, at least `TWIN_RATIO` as
 //!    strong, within `TWIN_WINDOW_SIGMAS` large sigmas and the suppression radius, with the
 //!    surface between them back at least halfway to the wall: two bands, not the two edges
-//!    of one wide groove) is one boundary between two bands, placed midway. A ring joint of a segmental lining is a 1.5 cm seam between two bands of bolt
-//!    pockets 8 cm deep, 0.2 m either side (the simulator's shield, after common pocket
-//!    layouts): the pockets, not the seam, give the response, and suppression kept whichever
-//!    band was stronger in that view, 0.2 m from the joint on either side. Several candidates
+//!    of one wide groove) is one boundary between two bands, placed midway. A ring joint of
+//!    a segmental lining is a 1.5 cm seam between two bands of bolt pockets 8 cm deep, 0.2 m
+//!    either side (the simulator's shield, after common pocket layouts): the pockets, not
+//!    the seam, give the response, and suppression kept whichever band was stronger in that
+//!    view, 0.2 m from the joint on either side. Several candidates
 //!    (a corrugation) or a weaker neighbour leave the peak where it is. Ribs are left alone:
 //!    pairing them too (the horseshoe's arches, each alone in its window, met overbreak and
 //!    shadow edges) gave 23 fewer loops and 3 fewer runs with every registry joint within
@@ -149,40 +150,7 @@ pub fn detect_boundaries(
             ),
         ));
     }
-    // Sectors and their bottom mask.
-    let sectors = cfg.profile_sectors.max(1);
-    let mask_rad = bottom_mask_deg.to_radians();
-    let masked: Vec<bool> = (0..sectors)
-        .map(|k| {
-            let theta = contour.sample((k as f64 + 0.5) / sectors as f64).theta;
-            let wrapped = (theta + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-                - std::f64::consts::PI;
-            wrapped.abs() <= mask_rad
-        })
-        .collect();
-    let sector_of = |p: f64| ((p * sectors as f64) as usize).min(sectors - 1);
-    // 1. Per-sector median offsets.
-    let mut per_sector: Vec<Vec<f64>> = vec![Vec::new(); sectors];
-    for q in points {
-        let k = sector_of(q.p);
-        if !masked[k] {
-            per_sector[k].push(q.s);
-        }
-    }
-    let baseline: Vec<f64> = per_sector.iter_mut().map(|v| signed_median(v)).collect();
-    drop(per_sector);
-    // 2. Profile: sum and count per bin.
-    let mut sum = vec![0.0; nbins];
-    let mut weight = vec![0.0; nbins];
-    for q in points {
-        let k = sector_of(q.p);
-        if masked[k] {
-            continue;
-        }
-        let b = (((q.z - zmin) / bin) as usize).min(nbins - 1);
-        sum[b] += q.s - baseline[k];
-        weight[b] += 1.0;
-    }
+    let (sum, weight) = axial_profile(points, contour, bottom_mask_deg, cfg, zmin, nbins);
     // 3. Normalised convolutions and their difference.
     let small = normalised_gaussian(&sum, &weight, cfg.dog_sigma_small_m / bin);
     let large = normalised_gaussian(&sum, &weight, cfg.dog_sigma_large_m / bin);
@@ -230,30 +198,15 @@ pub fn detect_boundaries(
         }
     }
     let twin_bins = radius_bins.min(TWIN_WINDOW_SIGMAS * cfg.dog_sigma_large_m / bin);
-    let refined = |b: usize| {
-        let (l, c, r) = (dog[b - 1].abs(), dog[b].abs(), dog[b + 1].abs());
-        let denom = l - 2.0 * c + r;
-        let shift = if denom.abs() > 1e-18 {
-            (0.5 * (l - r) / denom).clamp(-0.5, 0.5)
-        } else {
-            0.0
-        };
-        zmin + (b as f64 + 0.5 + shift) * bin
+    let profile = Profile {
+        z0_m: zmin,
+        bin_m: bin,
+        dog: &dog,
+        surface: &small,
     };
     let peaks = kept
         .iter()
-        .map(|&b| {
-            // 6. Twin bands: the boundary lies midway between them.
-            let z_m = match twin_of(b, &candidates_all, &dog, &small, twin_bins) {
-                Some(t) => 0.5 * (refined(b) + refined(t)),
-                None => refined(b),
-            };
-            BoundaryPeak {
-                z_m,
-                strength_m: dog[b].abs(),
-                response_m: dog[b],
-            }
-        })
+        .map(|&b| profile.peak(b, &candidates_all, twin_bins))
         .collect();
     Ok(BoundaryDetection {
         z0_m: zmin + 0.5 * bin,
@@ -266,38 +219,119 @@ pub fn detect_boundaries(
     })
 }
 
-/// Step 6 of the module doc: for a groove peak `b` (positive response), the one other groove
-/// candidate of at least [`TWIN_RATIO`] of its strength within `window_bins`, with the
-/// `surface` (small-Gaussian profile) between them back to [`TWIN_RETURN`] of the shallower
-/// one's depth or less, if there is exactly one (`candidates`: every candidate, any order).
-fn twin_of(
-    b: usize,
-    candidates: &[usize],
-    dog: &[f64],
-    surface: &[Option<f64>],
-    window_bins: f64,
-) -> Option<usize> {
-    // Two bands, not the two edges of one wide groove: between them the surface (small-
-    // Gaussian profile) comes back at least halfway to the wall.
-    let depth = |j: usize| surface[j].unwrap_or(0.0);
-    let apart = |c: usize| {
-        let (lo, hi) = (b.min(c), b.max(c));
-        let half = TWIN_RETURN * depth(b).min(depth(c));
-        (lo..=hi).any(|j| surface[j].is_some_and(|v| v <= half))
-    };
-    if dog[b] <= 0.0 {
-        return None; // ribs have no twins (module doc, step 6)
+/// Steps 1-2 of the module doc: per-sector median offsets, then the sum and count of the
+/// normalised offsets per axial bin (`nbins` bins of `cfg.profile_bin_m` from `zmin`), the
+/// bottom sector masked.
+fn axial_profile(
+    points: &[ChartPoint],
+    contour: &ReferenceContour,
+    bottom_mask_deg: f64,
+    cfg: &BoundaryConfig,
+    zmin: f64,
+    nbins: usize,
+) -> (Vec<f64>, Vec<f64>) {
+    let bin = cfg.profile_bin_m;
+    let sectors = cfg.profile_sectors.max(1);
+    let mask_rad = bottom_mask_deg.to_radians();
+    let masked: Vec<bool> = (0..sectors)
+        .map(|k| {
+            let theta = contour.sample((k as f64 + 0.5) / sectors as f64).theta;
+            let wrapped = (theta + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI;
+            wrapped.abs() <= mask_rad
+        })
+        .collect();
+    let sector_of = |p: f64| ((p * sectors as f64) as usize).min(sectors - 1);
+    // 1. Per-sector median offsets.
+    let mut per_sector: Vec<Vec<f64>> = vec![Vec::new(); sectors];
+    for q in points {
+        let k = sector_of(q.p);
+        if !masked[k] {
+            per_sector[k].push(q.s);
+        }
     }
-    let mut twins = candidates.iter().copied().filter(|&c| {
-        c != b
-            && (c as f64 - b as f64).abs() <= window_bins
-            && dog[c] * dog[b] > 0.0
-            && dog[c].abs() >= TWIN_RATIO * dog[b].abs()
-            && apart(c)
-    });
-    match (twins.next(), twins.next()) {
-        (Some(t), None) => Some(t),
-        _ => None,
+    let baseline: Vec<f64> = per_sector.iter_mut().map(|v| signed_median(v)).collect();
+    drop(per_sector);
+    // 2. Profile: sum and count per bin.
+    let mut sum = vec![0.0; nbins];
+    let mut weight = vec![0.0; nbins];
+    for q in points {
+        let k = sector_of(q.p);
+        if masked[k] {
+            continue;
+        }
+        let b = (((q.z - zmin) / bin) as usize).min(nbins - 1);
+        sum[b] += q.s - baseline[k];
+        weight[b] += 1.0;
+    }
+    (sum, weight)
+}
+
+/// The profile a peak is placed on: its first bin's lower edge, bin size, DoG and surface
+/// (small-Gaussian profile).
+struct Profile<'a> {
+    z0_m: f64,
+    bin_m: f64,
+    dog: &'a [f64],
+    surface: &'a [Option<f64>],
+}
+
+impl Profile<'_> {
+    /// Bin `b`'s axial position, refined to sub-bin precision by a parabola through it and its
+    /// neighbours.
+    fn refined(&self, b: usize) -> f64 {
+        let dog = self.dog;
+        let (l, c, r) = (dog[b - 1].abs(), dog[b].abs(), dog[b + 1].abs());
+        let denom = l - 2.0 * c + r;
+        let shift = if denom.abs() > 1e-18 {
+            (0.5 * (l - r) / denom).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        };
+        self.z0_m + (b as f64 + 0.5 + shift) * self.bin_m
+    }
+
+    /// The boundary of kept peak `b`: midway between twin bands (step 6), else at the peak.
+    fn peak(&self, b: usize, candidates: &[usize], twin_window_bins: f64) -> BoundaryPeak {
+        let z_m = match self.twin_of(b, candidates, twin_window_bins) {
+            Some(t) => 0.5 * (self.refined(b) + self.refined(t)),
+            None => self.refined(b),
+        };
+        BoundaryPeak {
+            z_m,
+            strength_m: self.dog[b].abs(),
+            response_m: self.dog[b],
+        }
+    }
+
+    /// Step 6 of the module doc: for a groove peak `b` (positive response), the one other
+    /// groove candidate of at least [`TWIN_RATIO`] of its strength within `window_bins`, with
+    /// the surface between them back to [`TWIN_RETURN`] of the shallower one's depth or less,
+    /// if there is exactly one (`candidates`: every candidate, any order).
+    fn twin_of(&self, b: usize, candidates: &[usize], window_bins: f64) -> Option<usize> {
+        let (dog, surface) = (self.dog, self.surface);
+        if dog[b] <= 0.0 {
+            return None; // ribs have no twins (module doc, step 6)
+        }
+        // Two bands, not the two edges of one wide groove: between them the surface comes
+        // back at least halfway to the wall.
+        let depth = |j: usize| surface[j].unwrap_or(0.0);
+        let apart = |c: usize| {
+            let (lo, hi) = (b.min(c), b.max(c));
+            let half = TWIN_RETURN * depth(b).min(depth(c));
+            (lo..=hi).any(|j| surface[j].is_some_and(|v| v <= half))
+        };
+        let mut twins = candidates.iter().copied().filter(|&c| {
+            c != b
+                && (c as f64 - b as f64).abs() <= window_bins
+                && dog[c] * dog[b] > 0.0
+                && dog[c].abs() >= TWIN_RATIO * dog[b].abs()
+                && apart(c)
+        });
+        match (twins.next(), twins.next()) {
+            (Some(t), None) => Some(t),
+            _ => None,
+        }
     }
 }
 
