@@ -38,11 +38,11 @@
 //!    a segmental lining is a 1.5 cm seam between two bands of bolt pockets 8 cm deep, 0.2 m
 //!    either side (the simulator's shield, after common pocket layouts): the pockets, not
 //!    the seam, give the response, and suppression kept whichever band was stronger in that
-//!    view, 0.2 m from the joint on either side. Several candidates
-//!    (a corrugation) or a weaker neighbour leave the peak where it is. Ribs are left alone:
-//!    pairing them too (the horseshoe's arches, each alone in its window, met overbreak and
-//!    shadow edges) gave 23 fewer loops and 3 fewer runs with every registry joint within
-//!    1 % on the matrix's tuned rows (m41 against m42), nothing better.
+//!    view, 0.2 m from the joint on either side. Several candidates (a corrugation) or a
+//!    weaker neighbour leave the peak where it is. Ribs are left alone: pairing them too
+//!    (the horseshoe's arches, each alone in its window, met overbreak and shadow edges)
+//!    gave 23 fewer loops and 3 fewer runs with every registry joint within 1 % on the
+//!    matrix's tuned rows (m41 against m42), nothing better.
 //!
 //! The bottom sector masked in the descriptor (`descriptor.bottom_mask_deg`, ground returns
 //! and debris) is left out of the profile too.
@@ -186,10 +186,9 @@ pub fn detect_boundaries(
         .collect();
     let candidate_count = candidates.len();
     candidates.sort_by(|&i, &j| dog[j].abs().total_cmp(&dog[i].abs()));
-    let candidates_all = candidates.clone();
     let radius_bins = cfg.nms_radius_m / bin;
     let mut kept: Vec<usize> = Vec::new();
-    for b in candidates {
+    for &b in &candidates {
         if kept
             .iter()
             .all(|&k| (k as f64 - b as f64).abs() > radius_bins)
@@ -206,7 +205,7 @@ pub fn detect_boundaries(
     };
     let peaks = kept
         .iter()
-        .map(|&b| profile.peak(b, &candidates_all, twin_bins))
+        .map(|&b| profile.peak(b, &candidates, twin_bins))
         .collect();
     Ok(BoundaryDetection {
         z0_m: zmin + 0.5 * bin,
@@ -324,8 +323,7 @@ impl Profile<'_> {
         let mut twins = candidates.iter().copied().filter(|&c| {
             c != b
                 && (c as f64 - b as f64).abs() <= window_bins
-                && dog[c] * dog[b] > 0.0
-                && dog[c].abs() >= TWIN_RATIO * dog[b].abs()
+                && dog[c] >= TWIN_RATIO * dog[b]
                 && apart(c)
         });
         match (twins.next(), twins.next()) {
