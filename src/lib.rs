@@ -3,9 +3,9 @@
 //! Pipeline (paper §III): [`submap`] accumulates scans; [`axis`], [`contour`], [`boundary`]
 //! and [`descriptor`] turn a submap into [`landmark::Landmark`]s ([`extract`] chains them);
 //! [`matching`] associates landmarks across traversals; [`io`] reads MCAP logs; [`map`] keeps
-//! the run's bounded voxel map for the corrected point cloud. The pose
-//! graph lives in Python (`python/decod_rs/graph.py`). Bindings are in `src/python/`, behind
-//! the `python` feature, and nothing else imports pyo3.
+//! the run's bounded voxel map for the corrected point cloud and [`map_quality`] measures how
+//! well its passes agree. The pose graph lives in Python (`python/decod_rs/graph.py`).
+//! Bindings are in `src/python/`, behind the `python` feature, and nothing else imports pyo3.
 #![warn(missing_docs)]
 
 pub mod axis;
@@ -19,6 +19,7 @@ pub mod geometry;
 pub mod io;
 pub mod landmark;
 pub mod map;
+pub mod map_quality;
 pub mod matching;
 pub mod pipeline;
 pub mod scan;

@@ -329,6 +329,23 @@ SURVEY_FORMAT_VERSION: int
 
 def write_survey(path: str, header_json: str, landmarks: list[Landmark]) -> None: ...
 def read_survey(path: str) -> tuple[str, list[Landmark]]: ...
+
+MIN_CELL_POINTS: int
+
+def point_chainage(
+    points: NDArray[np.float64],
+    submap: NDArray[np.uint32],
+    origin: NDArray[np.float64],
+    tangent: NDArray[np.float64],
+    arclength: NDArray[np.float64],
+) -> NDArray[np.float64]: ...
+def wall_thickness(
+    points: NDArray[np.float64],
+    pass_: NDArray[np.uint8],
+    chainage: NDArray[np.float64],
+    cell_m: float,
+    bin_m: float,
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]: ...
 def compare_pairs(
     landmarks: list[Landmark], pairs: list[tuple[int, int]], config_json: str
 ) -> list[PairResult]: ...

@@ -1,38 +1,12 @@
 """Map consistency without ground truth (issue 13): how thick the wall is where the outbound
 and the return pass overlap, per metre of corridor.
 
-A user with a real log has no ground truth, but the paper's own evidence on real pipes is the
-map (Fig. 5): under odometry the two passes place the same wall at two positions; after a
-correct loop closure they overlap. The figure measures that locally:
-
-1. the map is cut into cubic *cells* of ``CELL_VOXELS`` map voxels (5 cm in the auto-scaled
-   0.3 m hume pipe, 0.5 m in a 3 m tunnel); a cell counts where both passes put at least
-   ``MIN_CELL_POINTS`` points into it;
-2. in each such cell a plane is fitted to the points of both passes together (least
-   squares, the smallest principal axis as its normal): the wall, whatever the corridor's
-   cross-section (circle, horseshoe, floor, segment seams and bolt pockets larger than a
-   cell are all locally planar);
-3. the wall thickness of a bin (``BIN_M`` of chainage along the map's own outbound path) is
-   the RMS distance of its points from their cell's plane, with each cell's 3 fitted degrees
-   of freedom taken out (``sqrt(sum r^2 / sum (n - 3))``, unbiased for the few points of a
-   cell). Passes offset by ``d`` along the normal put their points ``d / 2`` either side of
-   the common plane: thickness ~ ``sqrt(noise^2 + d^2 / 4)``.
-
-The same fit on each pass alone in the same cells gives the noise floor: what the wall
-measures when no second pass can disagree with it (the sensor's noise after the map's voxel
-averaging, the wall's roughness within a cell, its curvature: ~``0.05 c^2 / r`` for cells of
-edge ``c`` on a radius ``r``; and, within a pass, how well neighbouring submaps agree).
-
-Why planes per cell and not one cross-section per metre: a tunnel's lining has seams, bolt
-pockets and a flat invert that a per-sector median profile of a 3 m section cannot follow;
-they made one pass alone 25 mm "thick" at 16.5 cm voxels, more than the passes disagree, and
-the figure could not see the correction. Cells follow any shape at their own scale.
-
-Limits: only the misalignment *across* the wall shows. In a uniform corridor an axial offset
-moves the wall along itself (the degeneracy DeCOD exists for), so the figure is blind to the
-axial error except where joints and features change the section. Passes more than about half
-a cell apart fall into different cells and the figure saturates (it still ranks maps, it no
-longer measures the offset). It complements ground truth; it does not replace it.
+The method (cells of ``CELL_VOXELS`` map voxels, a plane per cell fitted to both passes, the
+RMS distance of the points from it per ``BIN_M`` of chainage; each pass alone about its own
+planes as the floor; what the figure sees and where it saturates) is documented with its
+code in ``src/map_quality.rs``, which does the per-point work in one pass over the map. This
+module places the points along the corridor (the outbound path's frame at each submap's
+anchor) and wraps the result for ``report.json`` and the plot.
 """
 
 from __future__ import annotations
@@ -43,10 +17,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from decod_rs import _core
 from decod_rs.maps import OUTBOUND, RETURN, MapCloud
 
 FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "BIN_M",
@@ -66,12 +40,8 @@ BIN_M = 1.0
 #: shield (tunnel) maps: 2 voxels leave too few cells with both passes in the tunnel, 5 double
 #: the curvature floor in the pipe.
 CELL_VOXELS = 3.0
-#: Points of each pass for a cell to count (a plane has 3 degrees of freedom).
-MIN_CELL_POINTS = 4
-#: Points (of both passes, in counting cells) for a bin to get a figure.
-MIN_BIN_POINTS = 100
-#: Fitted degrees of freedom per plane.
-PLANE_DOF = 3
+#: Points of each pass for a cell to count (``src/map_quality.rs``).
+MIN_CELL_POINTS: int = _core.MIN_CELL_POINTS
 PASSES = {"outbound": OUTBOUND, "return": RETURN}
 
 
@@ -145,96 +115,32 @@ def _path_frame(path: FloatArray) -> tuple[FloatArray, FloatArray]:
     return arclength, tangent
 
 
-def point_chainage(
-    cloud: MapCloud, anchor_positions: FloatArray, path: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """Chainage (N,) of each map point along ``path`` (the outbound positions, P x 3) and the
-    path's tangent there (N, 3). Each point is projected through the path sample nearest to
-    the anchor of the submap that saw it (``anchor_positions`` K x 3): linear within a
-    submap's reach, and K x P distances instead of N x P."""
+def _submap_frames(
+    anchor_positions: FloatArray, path: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per submap (anchors K x 3): the sample of ``path`` nearest to its anchor (K, 3), the
+    path's tangent there (K, 3) and its arclength (K,): K x P distances, in blocks."""
     arclength, tangent = _path_frame(path)
-    nearest_to_anchor = np.empty(anchor_positions.shape[0], dtype=np.int64)
+    nearest = np.empty(anchor_positions.shape[0], dtype=np.int64)
     for start in range(0, anchor_positions.shape[0], 256):
         block = anchor_positions[start : start + 256]
         d2 = ((block[:, None, :] - path[None, :, :]) ** 2).sum(axis=2)
-        nearest_to_anchor[start : start + 256] = np.argmin(d2, axis=1)
-    nearest = nearest_to_anchor[cloud.submap]
-    along = np.einsum("ij,ij->i", cloud.points - path[nearest], tangent[nearest])
-    return arclength[nearest] + along, tangent[nearest]
+        nearest[start : start + 256] = np.argmin(d2, axis=1)
+    return path[nearest], tangent[nearest], arclength[nearest]
 
 
-def _cells(points: FloatArray, cell_m: float) -> tuple[IntArray, IntArray]:
-    """Cell index (N,) of each point in a grid of edge ``cell_m`` (numbered 0..m-1) and the
-    integer cell coordinates (N, 3)."""
-    key = np.floor(points / cell_m).astype(np.int64)
-    low = key.min(axis=0)
-    dims = key.max(axis=0) - low + 1
-    if float(np.prod(dims.astype(np.float64))) < 2.0**62:
-        k = key - low
-        flat = (k[:, 0] * dims[1] + k[:, 1]) * dims[2] + k[:, 2]
-        _, cell = np.unique(flat, return_inverse=True)
-    else:  # kilometres at millimetre cells: the slower row-wise unique
-        _, cell = np.unique(key, axis=0, return_inverse=True)
-    return np.asarray(cell, dtype=np.int64).ravel(), key
-
-
-def _moments(
-    local: FloatArray, group: IntArray, n: int
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Per group: point count (n,), coordinate sums (n, 3) and sums of outer products
-    (n, 3, 3) of ``local`` (coordinates within the cell: no cancellation far from the
-    origin)."""
-    count = np.bincount(group, minlength=n).astype(np.float64)
-    sums = np.asarray(
-        np.column_stack([np.bincount(group, weights=local[:, i], minlength=n) for i in range(3)]),
-        dtype=np.float64,
+def point_chainage(cloud: MapCloud, anchor_positions: FloatArray, path: FloatArray) -> FloatArray:
+    """Chainage (N,) of each map point along ``path`` (the outbound positions, P x 3): each
+    point is projected through the path sample nearest to the anchor of the submap that saw
+    it (``anchor_positions`` K x 3), linear within a submap's reach."""
+    origin, tangent, arclength = _submap_frames(np.asarray(anchor_positions, np.float64), path)
+    return _core.point_chainage(
+        np.asarray(cloud.points, dtype=np.float64),
+        np.asarray(cloud.submap, dtype=np.uint32),
+        origin,
+        tangent,
+        arclength,
     )
-    outer = np.empty((n, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            w = local[:, i] * local[:, j]
-            outer[:, i, j] = outer[:, j, i] = np.bincount(group, weights=w, minlength=n)
-    return count, sums, outer
-
-
-def _scatter(count: FloatArray, sums: FloatArray, outer: FloatArray) -> FloatArray:
-    """Scatter matrices (n, 3, 3) about each group's centroid, from its moments."""
-    n = np.maximum(count, 1.0)[:, None, None]
-    return outer - sums[:, :, None] * sums[:, None, :] / n
-
-
-def _smallest_eigen(a: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Smallest eigenvalue (n,) and its unit eigenvector (n, 3) of symmetric 3 x 3 matrices
-    (n, 3, 3), in closed form (the trigonometric solution of the characteristic cubic; the
-    vector as the largest cross product of two rows of ``a - lambda I``): ten times faster
-    than a batched LAPACK call on the tens of thousands of cells of a map."""
-    q = np.trace(a, axis1=1, axis2=2) / 3.0
-    b = a - q[:, None, None] * np.eye(3)
-    p = np.sqrt(np.einsum("nij,nij->n", b, b) / 6.0)
-    safe = np.where(p > 0, p, 1.0)
-    r = np.clip(np.linalg.det(b / safe[:, None, None]) / 2.0, -1.0, 1.0)
-    value = q + 2.0 * p * np.cos(np.arccos(r) / 3.0 + 2.0 * np.pi / 3.0)
-    rows = a - value[:, None, None] * np.eye(3)
-    crosses = np.stack(
-        [
-            np.cross(rows[:, 0], rows[:, 1]),
-            np.cross(rows[:, 0], rows[:, 2]),
-            np.cross(rows[:, 1], rows[:, 2]),
-        ],
-        axis=1,
-    )
-    norms = np.linalg.norm(crosses, axis=2)
-    best = np.argmax(norms, axis=1)
-    pick = np.arange(a.shape[0])
-    vector = crosses[pick, best] / np.maximum(norms[pick, best], 1e-300)[:, None]
-    return value, vector
-
-
-def _per_bin(ss: FloatArray, dof: FloatArray, bins: IntArray, n_bins: int) -> FloatArray:
-    """``sqrt(sum ss / sum dof)`` per bin over the cells of the bin; NaN without any."""
-    total = np.bincount(bins, weights=ss, minlength=n_bins)
-    w = np.bincount(bins, weights=dof, minlength=n_bins)
-    return np.where(w > 0, np.sqrt(np.maximum(total, 0.0) / np.maximum(w, 1e-12)), np.nan)
 
 
 def map_consistency(
@@ -244,13 +150,9 @@ def map_consistency(
     voxel_m: float,
 ) -> Consistency:
     """Wall thickness per ``BIN_M`` of chainage along ``path`` (the map's outbound positions,
-    P x 3) where both passes of ``cloud`` reach, and each pass's own floor (module doc), in
-    cells of ``CELL_VOXELS`` x ``voxel_m`` (the map's voxel). ``anchor_positions`` (K, 3):
-    the submap anchors in the same trajectory.
-
-    Everything comes from per-cell moments: the sum of squared distances of a group's points
-    from its least-squares plane is the smallest eigenvalue of its scatter matrix, and from
-    a plane of normal ``u`` through its centroid ``u' S u``."""
+    P x 3) where both passes of ``cloud`` reach, and each pass's own floor, in cells of
+    ``CELL_VOXELS`` x ``voxel_m`` (the map's voxel; ``src/map_quality.rs``).
+    ``anchor_positions`` (K, 3): the submap anchors in the same trajectory."""
     if not (np.isfinite(voxel_m) and voxel_m > 0):
         raise ValueError(f"voxel_m: must be finite and > 0, got {voxel_m}")
     cell_m = CELL_VOXELS * float(voxel_m)
@@ -258,42 +160,19 @@ def map_consistency(
     points = {name: int(np.count_nonzero(cloud.pass_ == p)) for name, p in PASSES.items()}
     if cloud.points.shape[0] == 0 or path.shape[0] < 2:
         return Consistency(empty, empty, empty, empty, points, cell_m)
-    cell, key = _cells(cloud.points, cell_m)
-    m = int(cell.max()) + 1
-    ret = (cloud.pass_ == RETURN).astype(np.int64)
-    count, sums, outer = _moments(cloud.points - key * cell_m, cell * 2 + ret, 2 * m)
-    per_pass = count.reshape(m, 2)
-    ok = np.all(per_pass >= MIN_CELL_POINTS, axis=1)
-    # Each pass's own planes: the floor.
-    scatter = _scatter(count, sums, outer).reshape(m, 2, 3, 3)[ok]
-    alone = _smallest_eigen(scatter.reshape(-1, 3, 3))[0].reshape(-1, 2)
-    # Both passes about one plane through their common centroid, normal to the pooled
-    # scatter of the passes about their own centroids. (A plane fitted to all points at once
-    # could tilt through two parallel patches that sit side by side in the cell and hide
-    # their offset; the pooled scatter cannot.)
-    _, normal = _smallest_eigen(scatter.sum(axis=1))
-    c2 = per_pass[ok].sum(axis=1)
-    both = _scatter(
-        c2, sums.reshape(m, 2, 3)[ok].sum(axis=1), outer.reshape(m, 2, 3, 3)[ok].sum(axis=1)
+    chainage = point_chainage(cloud, anchor_positions, path)
+    start, overlap, outbound, ret = _core.wall_thickness(
+        np.asarray(cloud.points, dtype=np.float64),
+        np.asarray(cloud.pass_, dtype=np.uint8),
+        chainage,
+        cell_m,
+        BIN_M,
     )
-    overlap_ss = np.einsum("ci,cij,cj->c", normal, both, normal)
-    # The bin of each cell: its points' mean chainage.
-    chainage, _ = point_chainage(cloud, anchor_positions, path)
-    lo = np.floor(chainage.min() / BIN_M) * BIN_M
-    n = int((chainage.max() - lo) // BIN_M) + 1
-    cell_chainage = np.bincount(cell, weights=chainage, minlength=m)[ok] / c2
-    bins = np.clip(((cell_chainage - lo) // BIN_M).astype(np.int64), 0, n - 1)
-    overlap = _per_bin(overlap_ss, c2 - PLANE_DOF, bins, n)
-    counted = np.bincount(bins, weights=c2, minlength=n)
-    floors = [
-        _per_bin(alone[:, p], per_pass[ok][:, p] - PLANE_DOF, bins, n) for p in (OUTBOUND, RETURN)
-    ]
-    nan = np.where(counted >= MIN_BIN_POINTS, 0.0, np.nan)
     return Consistency(
-        chainage_m=lo + BIN_M * (np.arange(n) + 0.5),
-        overlap_m=overlap + nan,
-        outbound_m=floors[0] + nan,
-        return_m=floors[1] + nan,
+        chainage_m=start + BIN_M * (np.arange(overlap.size, dtype=np.float64) + 0.5),
+        overlap_m=overlap,
+        outbound_m=outbound,
+        return_m=ret,
         points=points,
         cell_m=cell_m,
     )

@@ -10,6 +10,7 @@ mod errors;
 mod extraction;
 mod io;
 mod landmark;
+mod map_quality;
 mod matching;
 mod pipeline;
 mod survey;
@@ -42,6 +43,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     errors::register(m)?;
     config::register(m)?;
     landmark::register(m)?;
+    map_quality::register(m)?;
     extraction::register(m)?;
     io::register(m)?;
     matching::register(m)?;

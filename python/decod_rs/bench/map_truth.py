@@ -104,7 +104,7 @@ def wall_truth(sim: Path, run: Path, name: str) -> dict[str, object]:
     path = outbound_path(stamps, poses, split)
     positions = est[:, :3, 3]
     figure = map_consistency(cloud, positions, path, voxel)
-    chainage, _ = point_chainage(cloud, positions, path)
+    chainage = point_chainage(cloud, positions, path)
     lo = np.floor(chainage.min() / BIN_M) * BIN_M
     bins = np.clip(((chainage - lo) // BIN_M).astype(np.int64), 0, figure.chainage_m.size - 1)
     ok = np.isfinite(half)
