@@ -4,7 +4,8 @@
 //! and [`descriptor`] turn a submap into [`landmark::Landmark`]s ([`extract`] chains them);
 //! [`matching`] associates landmarks across traversals; [`io`] reads MCAP logs; [`map`] keeps
 //! the run's bounded voxel map for the corrected point cloud and [`map_quality`] measures how
-//! well its passes agree. The pose graph lives in Python (`python/decod_rs/graph.py`).
+//! well its passes agree. The pose graph lives in Python (`python/decod_rs/graph.py`);
+//! [`landmark_factor`] evaluates its 5-DoF factor.
 //! Bindings are in `src/python/`, behind the `python` feature, and nothing else imports pyo3.
 #![warn(missing_docs)]
 
@@ -18,6 +19,7 @@ pub mod extract;
 pub mod geometry;
 pub mod io;
 pub mod landmark;
+pub mod landmark_factor;
 pub mod map;
 pub mod map_quality;
 pub mod matching;

@@ -332,6 +332,16 @@ def read_survey(path: str) -> tuple[str, list[Landmark]]: ...
 
 MIN_CELL_POINTS: int
 
+def landmark_residual(
+    world_from_i: NDArray[np.float64],
+    world_from_j: NDArray[np.float64],
+    c_i: NDArray[np.float64],
+    a_i: NDArray[np.float64],
+    c_j: NDArray[np.float64],
+    a_j: NDArray[np.float64],
+    frame: NDArray[np.float64],
+    jacobians: bool = False,
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None]: ...
 def point_chainage(
     points: NDArray[np.float64],
     submap: NDArray[np.uint32],

@@ -1,43 +1,18 @@
 """The 5-DoF landmark factor of the paper (§III-C, Eq. ``residual``) for GTSAM.
 
-For a verified boundary pair, query landmark ``i`` observed from pose ``T_i`` (submap ``k_i``)
-and database landmark ``j`` observed from pose ``T_j`` (``k_j``), both ``world_from_body``:
+For a verified boundary pair, query landmark ``i`` (origin ``c_i``, unit axis ``a_i`` in the
+body frame of pose ``T_i``) and database landmark ``j`` (``c_j``, ``a_j`` in that of ``T_j``),
+with ``T_ij = T_i^-1 T_j = (R_ij, t_ij)``:
 
-* ``c_i``, ``a_i``: contour centre (boundary origin, metres) and unit corridor axis of the
-  query, in the body frame of ``T_i``; ``c_j``, ``a_j`` the same for the database landmark in
-  the body frame of ``T_j``.
-* ``T_ij = T_i^-1 T_j = (R_ij, t_ij)``.
+    r = T_ij * c_j - c_i                  (3,, metres, frame k_i: the origins coincide)
+    delta = 1 - (a_i^T R_ij a_j)^2        (the axes are parallel, in either direction)
 
-Our reading of the paper's ``r_ij = t_ij - (c̄_i - c̄_j)`` with "these vectors expressed in
-frame k_i under the current relative pose": ``c̄_j`` is ``c_j`` rotated into frame ``k_i``,
-``R_ij c_j``, so
-
-    r = t_ij - (c_i - R_ij c_j) = T_ij * c_j - c_i          (3,, metres, frame k_i)
-
-i.e. the two observed boundary origins must coincide in the world; and
-
-    delta = 1 - (a_i^T R_ij a_j)^2                          (scalar)
-
-the two axes must be parallel, in either direction (a reversed traversal flips the sign of
-an axis, which ``delta`` ignores). Rotating either pose about the shared axis through the
-landmark origin changes neither term: the roll about the degenerate axis stays free, which is
-the point of the factor (§III-C, §IV-D: a 6-DoF factor imposes the gravity-based roll).
-
-``delta`` is quadratic in the axis misalignment angle ``theta`` (``delta = sin^2 theta``), so
-``landmark_axis_sigma`` = 0.01 means "about 0.1 rad is one sigma", and near ``delta = 0`` the
-term adds little curvature; the odometry chain carries the relative rotation there.
-
-Jacobians are analytic, for GTSAM's Pose3 chart: right-multiplied tangent perturbations
-``xi = [w, v]`` (rotation first), ``R -> R Exp(w)``, ``t -> t + R v``. With ``q = T_ij c_j``,
-``b = R_ij a_j`` and ``s = a_i^T b``:
-
-    dr/dw_i = [q]x          dr/dv_i = -I
-    dr/dw_j = -R_ij [c_j]x  dr/dv_j = R_ij
-    ddelta/dw_i = -2 s a_i^T [b]x      ddelta/dw_j = 2 s a_i^T R_ij [a_j]x
-    ddelta/dv_i = ddelta/dv_j = 0
-
-checked against central finite differences through ``gtsam.Pose3.retract`` in
-``tests/test_graph.py``.
+Rotating either pose about the shared axis through the landmark origin changes neither term:
+the roll about the degenerate axis stays free, the point of the factor. The residual and its
+analytic Jacobians (GTSAM's Pose3 chart, ``[w, v]``) are computed in Rust
+(``src/landmark_factor.rs``, where the derivation is; 25 us per linearisation in numpy, GTSAM
+asks tens of thousands of times per run) and checked against central finite differences
+through ``gtsam.Pose3.retract`` in ``tests/test_graph.py``.
 """
 
 from __future__ import annotations
@@ -48,12 +23,22 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from decod_rs import _core
+
 FloatArray = NDArray[np.float64]
 
 #: Residual layout: 3 position components (metres, frame k_i), then the axis term.
 RESIDUAL_DIM = 4
 
-__all__ = ["RESIDUAL_DIM", "axis_frame", "landmark_factor", "landmark_residual", "skew"]
+__all__ = ["RESIDUAL_DIM", "axis_frame", "landmark_factor", "landmark_residual"]
+
+
+def _f64(a: ArrayLike) -> FloatArray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+#: No rotation of the position rows.
+_IDENTITY = np.eye(3)
 
 
 def axis_frame(axis: ArrayLike) -> FloatArray:
@@ -65,11 +50,6 @@ def axis_frame(axis: ArrayLike) -> FloatArray:
     e1 = np.cross(a, helper)
     e1 /= np.linalg.norm(e1)
     return np.stack([a, e1, np.cross(a, e1)])
-
-
-def skew(v: FloatArray) -> FloatArray:
-    """The (3, 3) cross-product matrix ``[v]x`` of a (3,) vector."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def landmark_residual(
@@ -87,32 +67,16 @@ def landmark_residual(
     ``world_from_i``/``world_from_j``: (4, 4); ``c_*``: (3,) origins in metres and ``a_*``:
     (3,) unit axes, each in its own pose's body frame.
     """
-    ti = np.asarray(world_from_i, dtype=np.float64)
-    tj = np.asarray(world_from_j, dtype=np.float64)
-    ci = np.asarray(c_i, dtype=np.float64)
-    ai = np.asarray(a_i, dtype=np.float64)
-    cj = np.asarray(c_j, dtype=np.float64)
-    aj = np.asarray(a_j, dtype=np.float64)
-    ri_t = ti[:3, :3].T
-    r_ij = ri_t @ tj[:3, :3]
-    t_ij = ri_t @ (tj[:3, 3] - ti[:3, 3])
-    q = r_ij @ cj + t_ij
-    b = r_ij @ aj
-    s = float(ai @ b)
-    res = np.empty(RESIDUAL_DIM)
-    res[:3] = q - ci
-    res[3] = 1.0 - s * s
-    if not jacobians:
-        return res, None, None
-    hi = np.zeros((RESIDUAL_DIM, 6))
-    hj = np.zeros((RESIDUAL_DIM, 6))
-    hi[:3, :3] = skew(q)
-    hi[:3, 3:] = -np.eye(3)
-    hj[:3, :3] = -r_ij @ skew(cj)
-    hj[:3, 3:] = r_ij
-    hi[3, :3] = -2.0 * s * (ai @ skew(b))
-    hj[3, :3] = 2.0 * s * (ai @ r_ij @ skew(aj))
-    return res, hi, hj
+    return _core.landmark_residual(
+        _f64(world_from_i),
+        _f64(world_from_j),
+        _f64(c_i),
+        _f64(a_i),
+        _f64(c_j),
+        _f64(a_j),
+        _IDENTITY,
+        jacobians,
+    )
 
 
 def landmark_factor(
@@ -130,21 +94,16 @@ def landmark_factor(
     model (the graph uses a Huber-robust diagonal one). ``frame`` (3, 3): a rotation applied
     to the position residual and its Jacobian rows before the noise model (the graph passes
     :func:`axis_frame` of ``a_i``, so the sigmas are along the corridor and across it)."""
-    rot = np.eye(3) if frame is None else np.asarray(frame, dtype=np.float64).copy()
-    ci = np.asarray(c_i, dtype=np.float64).copy()
-    ai = np.asarray(a_i, dtype=np.float64).copy()
-    cj = np.asarray(c_j, dtype=np.float64).copy()
-    aj = np.asarray(a_j, dtype=np.float64).copy()
+    rot = _IDENTITY if frame is None else _f64(frame).copy()
+    ci, ai, cj, aj = (_f64(v).copy() for v in (c_i, a_i, c_j, a_j))
+    residual = _core.landmark_residual
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, h: Any) -> FloatArray:
         keys = this.keys()
         ti = values.atPose3(keys[0]).matrix()
         tj = values.atPose3(keys[1]).matrix()
-        res, hi, hj = landmark_residual(ti, tj, ci, ai, cj, aj, jacobians=h is not None)
-        res[:3] = rot @ res[:3]
+        res, hi, hj = residual(ti, tj, ci, ai, cj, aj, rot, h is not None)
         if h is not None and hi is not None and hj is not None:
-            hi[:3] = rot @ hi[:3]
-            hj[:3] = rot @ hj[:3]
             h[0] = hi
             h[1] = hj
         return res

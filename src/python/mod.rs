@@ -8,6 +8,7 @@ mod arrays;
 mod config;
 mod errors;
 mod extraction;
+mod factor;
 mod io;
 mod landmark;
 mod map_quality;
@@ -45,6 +46,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     landmark::register(m)?;
     map_quality::register(m)?;
     extraction::register(m)?;
+    factor::register(m)?;
     io::register(m)?;
     matching::register(m)?;
     pipeline::register(m)?;
