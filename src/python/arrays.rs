@@ -49,6 +49,30 @@ pub(crate) fn matrix_4x4(array: &PyReadonlyArray2<'_, f64>, name: &str) -> PyRes
     Ok(out)
 }
 
+/// `(3,)` float64 vector into an array; `name` is the argument named in the error.
+pub(crate) fn vec3(array: &PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<[f64; 3]> {
+    let v = vector(array);
+    <[f64; 3]>::try_from(v.as_slice()).map_err(|_| {
+        PyValueError::new_err(format!("`{name}` must have shape (3,), got ({},)", v.len()))
+    })
+}
+
+/// `(R, C)` float64 array into a fixed-size matrix; `name` is the argument named in the
+/// error.
+pub(crate) fn fixed_matrix<const R: usize, const C: usize>(
+    array: &PyReadonlyArray2<'_, f64>,
+    name: &str,
+) -> PyResult<nalgebra::SMatrix<f64, R, C>> {
+    let view = array.as_array();
+    if view.shape() != [R, C] {
+        return Err(PyValueError::new_err(format!(
+            "`{name}` must have shape ({R}, {C}), got {:?}",
+            view.shape()
+        )));
+    }
+    Ok(nalgebra::SMatrix::from_fn(|r, c| view[[r, c]]))
+}
+
 /// `(N,)` float64 vector into an owned Vec.
 pub(crate) fn vector(array: &PyReadonlyArray1<'_, f64>) -> Vec<f64> {
     array.as_array().iter().copied().collect()

@@ -16,7 +16,7 @@ use crate::geometry::{pose_from_matrix, pose_to_matrix};
 use crate::scan::Scan;
 use crate::submap::{Submap, SubmapBuilder};
 
-use super::arrays::{flat_to_numpy, matrix_4x4, points_n3, vector};
+use super::arrays::{flat_to_numpy, matrix_4x4, points_n3, vec3, vector};
 use super::detached;
 use super::errors::{ConfigError, to_py_err};
 use super::landmark::PyLandmark;
@@ -27,13 +27,6 @@ pub(crate) fn config_from_json(json: &str) -> PyResult<DecodConfig> {
         .map_err(|e| ConfigError::new_err(format!("invalid config JSON: {e}")))?;
     cfg.validate().map_err(to_py_err)?;
     Ok(cfg)
-}
-
-fn vec3(array: &PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<[f64; 3]> {
-    let v = vector(array);
-    <[f64; 3]>::try_from(v.as_slice()).map_err(|_| {
-        PyValueError::new_err(format!("`{name}` must have shape (3,), got ({},)", v.len()))
-    })
 }
 
 fn to_f32(points: Vec<[f64; 3]>) -> Vec<[f32; 3]> {

@@ -1,40 +1,12 @@
 //! Bindings for the landmark factor's residual (`decod::landmark_factor`), called by the
 //! graph's `gtsam.CustomFactor` at every linearisation: numpy in and out.
 
-use nalgebra::{Matrix3, Matrix4, Vector3};
+use nalgebra::{Matrix4, Vector3};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use super::arrays::flat_to_numpy;
+use super::arrays::{fixed_matrix, flat_to_numpy, vec3};
 use crate::landmark_factor::{Jacobian, LandmarkPair, RESIDUAL_DIM, landmark_residual as residual};
-
-/// A `(R, C)` float64 array into a matrix, or a ValueError naming `name`.
-fn fixed<const R: usize, const C: usize>(
-    array: &PyReadonlyArray2<'_, f64>,
-    name: &str,
-) -> PyResult<nalgebra::SMatrix<f64, R, C>> {
-    let view = array.as_array();
-    if view.shape() != [R, C] {
-        return Err(PyValueError::new_err(format!(
-            "`{name}` must have shape ({R}, {C}), got {:?}",
-            view.shape()
-        )));
-    }
-    Ok(nalgebra::SMatrix::from_fn(|r, c| view[[r, c]]))
-}
-
-/// A `(3,)` float64 array into a vector, or a ValueError naming `name`.
-fn vector3(array: &PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<Vector3<f64>> {
-    let view = array.as_array();
-    if view.len() != 3 {
-        return Err(PyValueError::new_err(format!(
-            "`{name}` must have shape (3,), got {:?}",
-            view.shape()
-        )));
-    }
-    Ok(Vector3::new(view[0], view[1], view[2]))
-}
 
 fn jacobian_to_numpy<'py>(py: Python<'py>, h: &Jacobian) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let rows: Vec<f64> = (0..RESIDUAL_DIM)
@@ -67,14 +39,14 @@ fn landmark_residual<'py>(
     frame: PyReadonlyArray2<'_, f64>,
     jacobians: bool,
 ) -> PyResult<Residual<'py>> {
-    let ti: Matrix4<f64> = fixed(&world_from_i, "world_from_i")?;
-    let tj: Matrix4<f64> = fixed(&world_from_j, "world_from_j")?;
+    let ti: Matrix4<f64> = fixed_matrix(&world_from_i, "world_from_i")?;
+    let tj: Matrix4<f64> = fixed_matrix(&world_from_j, "world_from_j")?;
     let pair = LandmarkPair {
-        c_i: vector3(&c_i, "c_i")?,
-        a_i: vector3(&a_i, "a_i")?,
-        c_j: vector3(&c_j, "c_j")?,
-        a_j: vector3(&a_j, "a_j")?,
-        frame: fixed::<3, 3>(&frame, "frame")? as Matrix3<f64>,
+        c_i: Vector3::from(vec3(&c_i, "c_i")?),
+        a_i: Vector3::from(vec3(&a_i, "a_i")?),
+        c_j: Vector3::from(vec3(&c_j, "c_j")?),
+        a_j: Vector3::from(vec3(&a_j, "a_j")?),
+        frame: fixed_matrix(&frame, "frame")?,
     };
     let (res, jac) = residual(&ti, &tj, &pair, jacobians);
     let res = PyArray1::from_slice(py, res.as_slice());

@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 
 use crate::landmark::{Descriptor, Landmark};
 
-use super::arrays::{flat_to_numpy, rows_to_numpy, vector};
+use super::arrays::{flat_to_numpy, rows_to_numpy, vec3, vector};
 use super::errors::to_py_err;
 
 /// A detected cross-sectional boundary (see `decod::landmark::Landmark`).
@@ -25,13 +25,6 @@ impl PyLandmark {
             inner: Arc::new(inner),
         }
     }
-}
-
-fn vec3(v: &PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<[f64; 3]> {
-    let v = vector(v);
-    <[f64; 3]>::try_from(v.as_slice()).map_err(|_| {
-        PyValueError::new_err(format!("`{name}` must have shape (3,), got ({},)", v.len()))
-    })
 }
 
 #[pymethods]
