@@ -110,33 +110,46 @@ pub fn point_chainage(
         .collect()
 }
 
-/// Moments of one pass's points in one cell, about the cell's corner.
+/// Moments of one pass's points in one cell, about the cell's corner: count, sums and the
+/// six distinct sums of products (`xx xy xz yy yz zz`; a symmetric 3 x 3 stored whole took
+/// 216 instead of 168 bytes per cell, ~50 MB more on a 1 km tunnel's map).
 #[derive(Clone, Copy, Debug, Default)]
 struct Moments {
     count: u32,
     sum: Vector3<f64>,
-    outer: Matrix3<f64>,
+    outer: [f64; 6],
 }
 
 impl Moments {
-    fn add(&mut self, local: Vector3<f64>) {
+    fn add(&mut self, p: Vector3<f64>) {
         self.count += 1;
-        self.sum += local;
-        self.outer += local * local.transpose();
+        self.sum += p;
+        let products = [
+            p.x * p.x,
+            p.x * p.y,
+            p.x * p.z,
+            p.y * p.y,
+            p.y * p.z,
+            p.z * p.z,
+        ];
+        for (o, v) in self.outer.iter_mut().zip(products) {
+            *o += v;
+        }
     }
 
     fn merged(&self, other: &Moments) -> Moments {
         Moments {
             count: self.count + other.count,
             sum: self.sum + other.sum,
-            outer: self.outer + other.outer,
+            outer: std::array::from_fn(|k| self.outer[k] + other.outer[k]),
         }
     }
 
     /// Scatter matrix about the centroid.
     fn scatter(&self) -> Matrix3<f64> {
         let n = f64::from(self.count.max(1));
-        self.outer - self.sum * self.sum.transpose() / n
+        let [xx, xy, xz, yy, yz, zz] = self.outer;
+        Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz) - self.sum * self.sum.transpose() / n
     }
 }
 
