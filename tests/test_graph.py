@@ -173,6 +173,13 @@ def test_residual_zero_roll_free_and_sign_invariant():
 # --- the graph ---------------------------------------------------------------------------
 
 
+def test_residual_refuses_wrong_shapes_by_name():
+    with pytest.raises(ValueError, match="world_from_j"):
+        landmark_residual(np.eye(4), np.eye(3), np.zeros(3), np.ones(3), np.zeros(3), np.ones(3))
+    with pytest.raises(ValueError, match="c_j"):
+        landmark_residual(np.eye(4), np.eye(4), np.zeros(3), np.ones(3), np.zeros(2), np.ones(3))
+
+
 def test_corridor_drift_is_corrected():
     gt, odom, loops = corridor()
     before = endpoint_error(odom, gt)

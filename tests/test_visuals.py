@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -330,3 +331,21 @@ def test_consistency_needs_a_positive_voxel() -> None:
     cloud = _cylinders(0.0, 0.001, np.random.default_rng(2))
     with pytest.raises(ValueError, match="voxel_m"):
         map_consistency(cloud, np.zeros((1, 3)), np.zeros((2, 3)), 0.0)
+
+
+def test_consistency_names_the_point_or_submap_at_fault() -> None:
+    """Bad map data is refused with the index at fault, not a panic or a silent NaN figure."""
+    cloud = _cylinders(0.0, 0.001, np.random.default_rng(3))
+    anchors = np.column_stack([np.arange(20) + 0.5, np.zeros(20), np.zeros(20)])
+    path = np.column_stack([np.linspace(0, 20, 50), np.zeros(50), np.zeros(50)])
+    bad_pass = cloud.pass_.copy()
+    bad_pass[7] = 3
+    with pytest.raises(ValueError, match=r"pass\[7\]"):
+        map_consistency(replace(cloud, pass_=bad_pass), anchors, path, 0.0165)
+    bad_points = cloud.points.copy()
+    bad_points[11, 2] = np.nan
+    with pytest.raises(ValueError, match=r"points\[11\]"):
+        map_consistency(replace(cloud, points=bad_points), anchors, path, 0.0165)
+    # A submap index beyond the anchors: the point cannot be placed along the corridor.
+    with pytest.raises(ValueError, match=r"submap\[\d+\]"):
+        map_consistency(cloud, anchors[:5], path, 0.0165)
