@@ -38,7 +38,10 @@ struct RawRecord {
 
 /// A decompressed chunk being read record by record.
 struct ChunkCursor {
+    /// The chunk's records from `start` to the end: the decompressed data (`start` 0), or
+    /// the record's own body when it is stored uncompressed (no copy).
     data: Vec<u8>,
+    start: usize,
     at: usize,
     offset: u64,
 }
@@ -54,6 +57,9 @@ pub struct McapFile {
     chunk: Option<ChunkCursor>,
     pending_fault: Option<LogFault>,
     peeked: Option<RawRecord>,
+    /// The largest record buffer done with, reused for the next record body: multi-megabyte
+    /// chunks allocated afresh each time cost page faults on every chunk.
+    spare: Vec<u8>,
     last_time: Option<u64>,
     in_summary: bool,
     done: bool,
@@ -97,6 +103,7 @@ impl McapFile {
             chunk: None,
             pending_fault: None,
             peeked: None,
+            spare: Vec::new(),
             last_time: None,
             in_summary: false,
             done: cut,
@@ -155,7 +162,9 @@ impl McapFile {
             );
             return Err(self.fault(FaultKind::Truncated, offset, reason));
         }
-        let mut body = vec![0u8; len as usize];
+        let mut body = std::mem::take(&mut self.spare);
+        body.clear();
+        body.resize(len as usize, 0);
         self.read_exact(&mut body, offset)?;
         self.pos = offset + RECORD_PREFIX + len;
         Ok(Some(RawRecord {
@@ -236,6 +245,7 @@ impl McapFile {
         let at = cursor.at;
         let offset = cursor.offset;
         if at >= cursor.data.len() {
+            self.recycle(cursor.data);
             return None;
         }
         let opcode = cursor.data[at];
@@ -243,7 +253,8 @@ impl McapFile {
         let end = len.and_then(|l| (at + RECORD_PREFIX as usize).checked_add(l));
         let Some(end) = end.filter(|&e| e <= cursor.data.len()) else {
             let reason = format!(
-                "record at byte {at} of the chunk runs past the chunk's end; rest of the chunk skipped"
+                "record at byte {} of the chunk runs past the chunk's end; rest of the chunk skipped",
+                at - cursor.start
             );
             return Some(Err(self.fault(FaultKind::Corrupt, offset, reason)));
         };
@@ -257,13 +268,21 @@ impl McapFile {
         Some(step)
     }
 
+    /// Keeps `buffer` for the next record body if it is larger than the one kept.
+    fn recycle(&mut self, buffer: Vec<u8>) {
+        if buffer.capacity() > self.spare.capacity() {
+            self.spare = buffer;
+        }
+    }
+
     /// Decompresses and checks a chunk record; a bad one becomes the pending fault.
-    fn open_chunk(&mut self, record: &RawRecord) {
-        match decompress_chunk(&record.body) {
-            Ok(data) => {
+    fn open_chunk(&mut self, record: RawRecord) {
+        match decompress_chunk(record.body) {
+            Ok((data, start)) => {
                 self.chunk = Some(ChunkCursor {
                     data,
-                    at: 0,
+                    start,
+                    at: start,
                     offset: record.offset,
                 })
             }
@@ -306,23 +325,28 @@ impl McapFile {
                     let entries = le_u32(&record.body, 2).map_or(0, |bytes| u64::from(bytes) / 16);
                     fault.messages_lost = Some(fault.messages_lost.unwrap_or(0) + entries);
                     self.pending_fault = Some(fault);
+                    self.recycle(record.body);
                     continue;
                 }
                 self.peeked = Some(record);
                 return Some(Item::Fault(fault));
             }
             match record.opcode {
-                op::CHUNK => self.open_chunk(&record),
+                op::CHUNK => self.open_chunk(record),
                 op::DATA_END => self.in_summary = true,
                 op::FOOTER => {
                     self.done = true;
                     return self.check_end_magic(record.offset);
                 }
-                opcode => match self.handle(opcode, &record.body, record.offset) {
-                    Ok(Some(msg)) => return Some(Item::Message(msg)),
-                    Ok(None) => {}
-                    Err(fault) => return Some(Item::Fault(fault)),
-                },
+                opcode => {
+                    let step = self.handle(opcode, &record.body, record.offset);
+                    self.recycle(record.body);
+                    match step {
+                        Ok(Some(msg)) => return Some(Item::Message(msg)),
+                        Ok(None) => {}
+                        Err(fault) => return Some(Item::Fault(fault)),
+                    }
+                }
             }
         }
     }
@@ -340,13 +364,14 @@ impl McapFile {
     }
 }
 
-/// The decompressed, CRC-checked content of a chunk record, or why not and the chunk's
-/// log-time span.
 /// Why a chunk is unusable, and its log-time span when its header was readable.
 type ChunkError = (String, Option<(u64, u64)>);
 
-fn decompress_chunk(body: &[u8]) -> std::result::Result<Vec<u8>, ChunkError> {
-    let (header, data) = match mcap::parse_record(op::CHUNK, body) {
+/// The chunk's records: `(buffer, start)` with the records in `buffer[start..]`. An
+/// uncompressed chunk keeps its record body (`start` past the chunk header), a compressed one
+/// is decompressed into a new buffer (`start` 0); both CRC-checked.
+fn decompress_chunk(body: Vec<u8>) -> std::result::Result<(Vec<u8>, usize), ChunkError> {
+    let (header, data) = match mcap::parse_record(op::CHUNK, &body) {
         Ok(Record::Chunk { header, data }) => (header, data),
         Ok(_) => return Err(("not a chunk".into(), None)),
         Err(e) => return Err((format!("malformed chunk header: {e}"), None)),
@@ -362,32 +387,53 @@ fn decompress_chunk(body: &[u8]) -> std::result::Result<Vec<u8>, ChunkError> {
         ));
     }
     let size = header.uncompressed_size as usize;
-    let out = match header.compression.as_str() {
-        "" => Ok(data.into_owned()),
-        "zstd" => zstd::stream::read::Decoder::new(&data[..])
-            .map_err(|e| format!("zstd: {e}"))
-            .and_then(|d| read_limited(d, size, "zstd")),
-        "lz4" => lz4_frame(&data, size),
-        other => Err(format!("unsupported compression `{other}`")),
+    // In place, the records follow the chunk header (MCAP: three u64 and a u32, the
+    // compression string with its u32 length, the records' u64 length) and run for
+    // `data.len()` bytes (anything after them in the record is not the chunk's).
+    let in_place = 8 + 8 + 8 + 4 + 4 + header.compression.len() + 8;
+    let records_end = in_place + data.len();
+    if records_end > body.len() {
+        let reason = "malformed chunk header: its records run past the record".to_string();
+        return Err((reason, span));
     }
-    .map_err(|e| (e, span))?;
-    if out.len() != size {
+    let decompressed = match header.compression.as_str() {
+        "" => None,
+        "zstd" => Some(
+            zstd::stream::read::Decoder::new(&data[..])
+                .map_err(|e| format!("zstd: {e}"))
+                .and_then(|d| read_limited(d, size, "zstd")),
+        ),
+        "lz4" => Some(lz4_frame(&data, size)),
+        other => Some(Err(format!("unsupported compression `{other}`"))),
+    };
+    let crc_stored = header.uncompressed_crc;
+    drop(data);
+    let (out, start) = match decompressed {
+        None => {
+            let mut body = body;
+            body.truncate(records_end);
+            (body, in_place)
+        }
+        Some(result) => (result.map_err(|e| (e, span))?, 0),
+    };
+    let records = &out[start..];
+    if records.len() != size {
         return Err((
-            format!("decompressed to {} bytes, header says {size}", out.len()),
+            format!(
+                "decompressed to {} bytes, header says {size}",
+                records.len()
+            ),
             span,
         ));
     }
-    if header.uncompressed_crc != 0 {
-        let crc = crc32fast::hash(&out);
-        if crc != header.uncompressed_crc {
-            let reason = format!(
-                "CRC mismatch (stored {:#010x}, computed {crc:#010x})",
-                header.uncompressed_crc
-            );
+    if crc_stored != 0 {
+        let crc = crc32fast::hash(records);
+        if crc != crc_stored {
+            let reason = format!("CRC mismatch (stored {crc_stored:#010x}, computed {crc:#010x})");
             return Err((reason, span));
         }
     }
-    Ok(out)
+    Ok((out, start))
 }
 
 /// Initial capacity of a decompression buffer. A chunk's declared size is not trusted for
