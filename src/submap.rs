@@ -8,10 +8,9 @@
 pub const VOXEL_INDEX_LIMIT: i64 = 1 << 20;
 
 /// The voxel of `q` as one `u64`: each index offset by `VOXEL_INDEX_LIMIT` into 21 bits, x
-/// highest, so packed keys order like the `(x, y, z)` indices.
-/// [`voxel_key`] of coordinates. The floor is a truncation corrected below zero: the
-/// baseline x86-64 target has no rounding instruction, and a libm call per coordinate took
-/// a tenth of the accumulation.
+/// highest, so packed keys order like the `(x, y, z)` indices. The floor is a truncation
+/// corrected below zero: the baseline x86-64 target has no rounding instruction, and a libm
+/// call per coordinate took a tenth of the accumulation.
 #[inline(always)]
 fn voxel_key_of(x: f64, y: f64, z: f64, voxel: f64) -> u64 {
     let index = |v: f64| {
