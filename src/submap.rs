@@ -22,6 +22,47 @@ fn voxel_key_of(x: f64, y: f64, z: f64, voxel: f64) -> u64 {
     (index(x) << 42) | (index(y) << 21) | index(z)
 }
 
+/// Voxel keys packed from the range window alone, before any point is seen: every kept point
+/// lies within `max_range_m` of the anchor, so each index fits `bits` bits above `lo`. The
+/// packing keeps the `(x, y, z)` order of [`voxel_key_of`]; with the automatic configuration
+/// (`max_range_m` about 256 voxels) it takes 30 bits, so points go straight into 16-byte rows
+/// with no second pass to re-pack them.
+struct WindowKeys {
+    voxel: f64,
+    lo: i64,
+    bits: u32,
+}
+
+impl WindowKeys {
+    fn new(voxel: f64, max_range: f64) -> Self {
+        // One voxel of margin each side for the rounding of `v / voxel`.
+        let reach = (max_range / voxel).ceil() as i64 + 1;
+        let bits = 64 - ((2 * reach + 1) as u64).leading_zeros();
+        Self {
+            voxel,
+            lo: -reach,
+            bits,
+        }
+    }
+
+    fn fits_u32(&self) -> bool {
+        3 * self.bits <= u32::BITS
+    }
+
+    /// The key of `q`; an index outside the window (never for a kept point) is clamped.
+    #[inline(always)]
+    fn key(&self, x: f64, y: f64, z: f64) -> u32 {
+        let max = (1i64 << self.bits) - 1;
+        let index = |v: f64| {
+            let scaled = v / self.voxel;
+            let t = scaled as i64;
+            let floor = if (t as f64) > scaled { t - 1 } else { t };
+            (floor - self.lo).clamp(0, max) as u32
+        };
+        (index(x) << (2 * self.bits)) | (index(y) << self.bits) | index(z)
+    }
+}
+
 /// One point of a window on its way to the voxel filter: its voxel key and its position in
 /// the anchor frame (f32: a micrometre at 10 m; the submap stores f32 centroids anyway).
 type Keyed = (u64, [f32; 3]);
@@ -37,7 +78,9 @@ const DIGIT_BITS: u32 = 11;
 /// run of equal keys averaged. A hash table of the window's voxels (with a write-combining
 /// cache in front) took 45 % of the extraction's CPU on 64-beam logs: a spinning sensor puts
 /// ~1.5 points into a voxel per scan, so nearly every point probed a table of ~100k voxels
-/// out of cache; the sort's passes are sequential.
+/// out of cache; the sort's passes are sequential. Re-packed keys that fit 32 bits (every
+/// window of the simulated corridors: 24-30 bits) are sorted as 16-byte rows instead of 24:
+/// the passes move memory, and the scatter was 40 % of the accumulation's samples.
 fn voxel_centroids(mut rows: Vec<Keyed>) -> Vec<[f32; 3]> {
     const SHIFTS: [u32; 3] = [42, 21, 0];
     let field = |k: u64, axis: usize| (k >> SHIFTS[axis]) & 0x1F_FFFF;
@@ -49,11 +92,29 @@ fn voxel_centroids(mut rows: Vec<Keyed>) -> Vec<[f32; 3]> {
         }
     }
     let bits: [u32; 3] = std::array::from_fn(|a| 64 - hi[a].saturating_sub(lo[a]).leading_zeros());
-    for (k, _) in rows.iter_mut() {
-        let c: [u64; 3] = std::array::from_fn(|a| field(*k, a) - lo[a]);
-        *k = (c[0] << (bits[1] + bits[2])) | (c[1] << bits[2]) | c[2];
+    let repack = |k: u64| {
+        let c: [u64; 3] = std::array::from_fn(|a| field(k, a) - lo[a]);
+        (c[0] << (bits[1] + bits[2])) | (c[1] << bits[2]) | c[2]
+    };
+    let total = bits.iter().sum();
+    if total <= u32::BITS {
+        // `repack` < 2^total <= 2^32: the narrowing keeps every bit.
+        let mut narrow: Vec<(u32, [f32; 3])> =
+            rows.iter().map(|&(k, q)| (repack(k) as u32, q)).collect();
+        drop(rows);
+        radix_sort(&mut narrow, total);
+        run_means(&narrow)
+    } else {
+        for (k, _) in rows.iter_mut() {
+            *k = repack(*k);
+        }
+        radix_sort(&mut rows, total);
+        run_means(&rows)
     }
-    radix_sort(&mut rows, bits.iter().sum());
+}
+
+/// The mean position of each run of equal keys, in order (sums in f64, in row order).
+fn run_means<K: RadixKey>(rows: &[(K, [f32; 3])]) -> Vec<[f32; 3]> {
     let mut out = Vec::new();
     for run in rows.chunk_by(|a, b| a.0 == b.0) {
         let mut sum = [0.0f64; 3];
@@ -68,34 +129,96 @@ fn voxel_centroids(mut rows: Vec<Keyed>) -> Vec<[f32; 3]> {
     out
 }
 
+/// A sort key of [`radix_sort`]: one `DIGIT_BITS` digit at a time.
+trait RadixKey: Copy + Default + PartialEq {
+    fn digit(self, shift: u32) -> usize;
+}
+
+impl RadixKey for u32 {
+    #[inline(always)]
+    fn digit(self, shift: u32) -> usize {
+        ((self >> shift) as usize) & ((1 << DIGIT_BITS) - 1)
+    }
+}
+
+impl RadixKey for u64 {
+    #[inline(always)]
+    fn digit(self, shift: u32) -> usize {
+        ((self >> shift) as usize) & ((1 << DIGIT_BITS) - 1)
+    }
+}
+
 /// Stable least-significant-digit radix sort of `rows` by the low `bits` bits of their keys
-/// (a pass whose digit is the same for every row is skipped).
-fn radix_sort(rows: &mut Vec<Keyed>, bits: u32) {
+/// (a pass whose digit is the same for every row is skipped). Every pass's counts come from
+/// one read of the rows.
+fn radix_sort<K: RadixKey>(rows: &mut Vec<(K, [f32; 3])>, bits: u32) {
     let buckets = 1usize << DIGIT_BITS;
-    let mut scratch: Vec<Keyed> = vec![(0, [0.0; 3]); rows.len()];
-    for pass in 0..bits.div_ceil(DIGIT_BITS) {
-        let shift = pass * DIGIT_BITS;
-        let digit = |k: u64| ((k >> shift) as usize) & (buckets - 1);
-        let mut offsets = vec![0usize; buckets];
-        for (k, _) in rows.iter() {
-            offsets[digit(*k)] += 1;
+    let passes = bits.div_ceil(DIGIT_BITS) as usize;
+    let mut counts = vec![0usize; passes * buckets];
+    for (k, _) in rows.iter() {
+        for (pass, slots) in counts.chunks_exact_mut(buckets).enumerate() {
+            slots[k.digit(pass as u32 * DIGIT_BITS)] += 1;
         }
+    }
+    let mut scratch: Vec<(K, [f32; 3])> = Vec::new();
+    for (pass, offsets) in counts.chunks_exact_mut(buckets).enumerate() {
         if offsets.contains(&rows.len()) {
             continue;
         }
+        let shift = pass as u32 * DIGIT_BITS;
         let mut start = 0;
         for slot in offsets.iter_mut() {
             let count = *slot;
             *slot = start;
             start += count;
         }
+        if scratch.len() != rows.len() {
+            scratch = vec![(K::default(), [0.0; 3]); rows.len()];
+        }
         for row in rows.iter() {
-            let d = digit(row.0);
+            let d = row.0.digit(shift);
             scratch[offsets[d]] = *row;
             offsets[d] += 1;
         }
         std::mem::swap(rows, &mut scratch);
     }
+}
+
+/// Every point of `scans` kept by the range window (closer than `sqrt(min_r2)` to its own
+/// sensor or farther than `sqrt(max_r2)` from the anchor: dropped), in the anchor frame,
+/// with its voxel key.
+fn accumulate<K>(
+    scans: &[Scan],
+    anchor_from_world: &Pose,
+    min_r2: f64,
+    max_r2: f64,
+    key: impl Fn(&Vector3<f64>) -> K,
+) -> Vec<(K, [f32; 3])> {
+    let total: usize = scans.iter().map(|s| s.points_in_body.len()).sum();
+    let mut rows = Vec::with_capacity(total);
+    for scan in scans {
+        let anchor_from_body = (anchor_from_world * scan.world_from_body).to_homogeneous();
+        let rotation = anchor_from_body.fixed_view::<3, 3>(0, 0).into_owned();
+        let translation = anchor_from_body.fixed_view::<3, 1>(0, 3).into_owned();
+        for p in &scan.points_in_body {
+            let body = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            if body.norm_squared() < min_r2 {
+                continue;
+            }
+            let q = rotation * body + translation;
+            if q.norm_squared() > max_r2 {
+                continue;
+            }
+            rows.push((key(&q), [q.x as f32, q.y as f32, q.z as f32]));
+        }
+    }
+    rows
+}
+
+/// [`run_means`] of `rows` sorted by the low `bits` bits of their keys.
+fn sorted_means<K: RadixKey>(mut rows: Vec<(K, [f32; 3])>, bits: u32) -> Vec<[f32; 3]> {
+    radix_sort(&mut rows, bits);
+    run_means(&rows)
 }
 
 use nalgebra::Vector3;
@@ -149,32 +272,28 @@ impl Submap {
         })?;
         validate_scans(scans)?;
         let anchor_from_world = anchor.world_from_body.inverse();
-        let voxel = cfg.voxel_m;
-        let (min_r2, max_r2) = (cfg.min_range_m.powi(2), cfg.max_range_m.powi(2));
-        // Every kept point with its voxel key; centroids per voxel at the end.
-        let total: usize = scans.iter().map(|s| s.points_in_body.len()).sum();
-        let mut rows: Vec<Keyed> = Vec::with_capacity(total);
+        let (voxel, max_range) = (cfg.voxel_m, cfg.max_range_m);
+        let (min_r2, max_r2) = (cfg.min_range_m.powi(2), max_range.powi(2));
+        let keys = WindowKeys::new(voxel, max_range);
+        let points_in_anchor = if keys.fits_u32() {
+            let rows = accumulate(scans, &anchor_from_world, min_r2, max_r2, |q| {
+                keys.key(q.x, q.y, q.z)
+            });
+            sorted_means(rows, 3 * keys.bits)
+        } else {
+            let rows = accumulate(scans, &anchor_from_world, min_r2, max_r2, |q| {
+                voxel_key_of(q.x, q.y, q.z, voxel)
+            });
+            voxel_centroids(rows)
+        };
         let mut force_sum = Vector3::zeros();
         let mut force_count = 0usize;
         for scan in scans {
-            let anchor_from_body = (anchor_from_world * scan.world_from_body).to_homogeneous();
-            let rotation = anchor_from_body.fixed_view::<3, 3>(0, 0).into_owned();
-            let translation = anchor_from_body.fixed_view::<3, 1>(0, 3).into_owned();
             if let Some(f) = scan.specific_force_in_body {
+                let anchor_from_body = (anchor_from_world * scan.world_from_body).to_homogeneous();
+                let rotation = anchor_from_body.fixed_view::<3, 3>(0, 0).into_owned();
                 force_sum += rotation * Vector3::from(f);
                 force_count += 1;
-            }
-            for p in &scan.points_in_body {
-                let body = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-                if body.norm_squared() < min_r2 {
-                    continue;
-                }
-                let q = rotation * body + translation;
-                if q.norm_squared() > max_r2 {
-                    continue;
-                }
-                let key = voxel_key_of(q.x, q.y, q.z, voxel);
-                rows.push((key, [q.x as f32, q.y as f32, q.z as f32]));
             }
         }
         let gravity = if force_count > 0 && force_sum.norm() > 1e-9 {
@@ -187,7 +306,7 @@ impl Submap {
             anchor_stamp: anchor.stamp,
             scan_stamps: scans.iter().map(|s| s.stamp).collect(),
             world_from_anchor: anchor.world_from_body,
-            points_in_anchor: voxel_centroids(rows),
+            points_in_anchor,
             gravity_in_anchor: gravity,
             forward_in_anchor: [1.0, 0.0, 0.0],
         })
@@ -460,8 +579,21 @@ mod tests {
         // column, columns around), moved and turned: every voxel's centroid equals the mean
         // of its points computed directly (the cache only regroups the sums), and points
         // beyond the range window are dropped.
+        for max_range in [DecodConfig::tunnel().submap.max_range_m, 400.0] {
+            accumulation_equals_the_plain_voxel_means(max_range);
+        }
+    }
+
+    /// With the tunnel preset's range window the keys take 3 x 10 bits (16-byte rows); with
+    /// 400 m, 3 x 14 (the wide path).
+    fn accumulation_equals_the_plain_voxel_means(max_range: f64) {
         let mut cfg = DecodConfig::tunnel().submap;
         cfg.voxel_m = 0.07;
+        cfg.max_range_m = max_range;
+        assert_eq!(
+            WindowKeys::new(cfg.voxel_m, max_range).fits_u32(),
+            max_range < 100.0
+        );
         let column = |c: usize, b: usize| -> [f32; 3] {
             let az = c as f32 * 0.02;
             let el = (b as f32 - 8.0) * 0.03;
@@ -508,10 +640,52 @@ mod tests {
         for (got, (_, (sum, n))) in m.points_in_anchor.iter().zip(&reference) {
             for i in 0..3 {
                 let want = sum[i] / f64::from(*n);
+                // Rows hold f32 positions: 6e-8 relative each (1e-5 m at 200 m).
                 assert!(
-                    (f64::from(got[i]) - want).abs() < 1e-5,
+                    (f64::from(got[i]) - want).abs() < 1e-5 + 1e-7 * want.abs(),
                     "{got:?} {sum:?} {n}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn voxel_means_agree_on_narrow_and_wide_keys() {
+        // Keys spanning 3 x 5 bits (sorted as u32) and 3 x 13 bits (39 bits: sorted as u64),
+        // several points per voxel in scrambled order: each centroid is its voxel's mean, in
+        // key order, whichever width sorted it.
+        for span in [20u64, 6_000] {
+            let mut state = 0x2545_F491_4F6C_DD1Du64;
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let base = VOXEL_INDEX_LIMIT as u64 - span / 2;
+            let mut rows: Vec<Keyed> = Vec::new();
+            let mut reference: std::collections::BTreeMap<u64, ([f64; 3], f64)> =
+                std::collections::BTreeMap::new();
+            let voxels: Vec<u64> = (0..2_000)
+                .map(|_| {
+                    let idx = [next() % span, next() % span, next() % span].map(|i| base + i);
+                    (idx[0] << 42) | (idx[1] << 21) | idx[2]
+                })
+                .collect();
+            for _ in 0..20_000 {
+                let key = voxels[(next() % 2_000) as usize];
+                let q = [next() % 1000, next() % 1000, next() % 1000].map(|v| v as f32 * 1e-3);
+                rows.push((key, q));
+                let e = reference.entry(key).or_insert(([0.0; 3], 0.0));
+                (0..3).for_each(|a| e.0[a] += f64::from(q[a]));
+                e.1 += 1.0;
+            }
+            let got = voxel_centroids(rows);
+            assert_eq!(got.len(), reference.len(), "span {span}");
+            for (g, (sum, n)) in got.iter().zip(reference.values()) {
+                for a in 0..3 {
+                    assert!((f64::from(g[a]) - sum[a] / n).abs() < 1e-6, "{g:?} {sum:?}");
+                }
             }
         }
     }
