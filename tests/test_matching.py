@@ -30,6 +30,28 @@ def test_same_joint_from_the_reversed_heading_is_matched() -> None:
     assert r.score == pytest.approx(2 * r.inliers / (r.query_keypoints + r.candidate_keypoints))
 
 
+def test_pairs_of_one_pass_are_compared_under_its_own_heading_only() -> None:
+    # Views of one pass share the sensor's heading: with ``same_heading`` a pair that agrees
+    # only turned round is judged at 0 degrees (and fails), an unturned pair is unchanged.
+    from decod_rs.matching import PairMemo, compare_pairs
+
+    a = synthetic_landmark(1, 5, stamp=0.0, view_seed=1)
+    turned = synthetic_landmark(1, 5, stamp=500.0, view_seed=2, reversed=True)
+    same = synthetic_landmark(1, 5, stamp=500.0, view_seed=3)
+    both = compare_pairs([a, turned, same], [(0, 1), (0, 2)], CFG)
+    one = compare_pairs([a, turned, same], [(0, 1), (0, 2)], CFG, same_heading=True)
+    assert both[0].heading_deg == 180.0 and both[0].inliers >= MIN_INLIERS
+    assert one[0].heading_deg == 0.0 and one[0].inliers < MIN_INLIERS
+    assert (one[1].heading_deg, one[1].inliers, one[1].chance) == (
+        both[1].heading_deg,
+        both[1].inliers,
+        both[1].chance,
+    )
+    assert both[1].heading_deg == 0.0 and both[1].inliers >= MIN_INLIERS
+    memo = PairMemo([a, turned, same], CFG)
+    assert [r.heading_deg for r in memo.compare([(0, 1), (0, 2)])] == [0.0, 0.0]
+
+
 def test_half_missing_and_misaligned_views_match() -> None:
     a = synthetic_landmark(1, 6, view_seed=1, random_view=False)
     half = synthetic_landmark(

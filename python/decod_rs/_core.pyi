@@ -357,7 +357,10 @@ def wall_thickness(
     bin_m: float,
 ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]: ...
 def compare_pairs(
-    landmarks: list[Landmark], pairs: list[tuple[int, int]], config_json: str
+    landmarks: list[Landmark],
+    pairs: list[tuple[int, int]],
+    config_json: str,
+    same_heading: bool = False,
 ) -> list[PairResult]: ...
 def compare(query: Landmark, candidate: Landmark, config_json: str) -> PairResult: ...
 def synthetic_landmark(

@@ -50,13 +50,19 @@ def compare_pairs(
     landmarks: Sequence[Landmark],
     pairs: Sequence[tuple[int, int]],
     config: MatchingConfigLike = None,
+    *,
+    same_heading: bool = False,
 ) -> list[PairResult]:
     """Many comparisons at once: ``pairs`` of (query, candidate) indices into ``landmarks``,
-    each landmark prepared once, pairs in parallel; results in the order of ``pairs``."""
+    each landmark prepared once, pairs in parallel; results in the order of ``pairs``.
+    ``same_heading``: under 0 degrees only (views of one pass share the sensor's heading)."""
     if not pairs:
         return []
     return _core.compare_pairs(
-        list(landmarks), [(int(i), int(j)) for i, j in pairs], matching_config_json(config)
+        list(landmarks),
+        [(int(i), int(j)) for i, j in pairs],
+        matching_config_json(config),
+        same_heading,
     )
 
 
@@ -93,9 +99,10 @@ def synthetic_landmark(
 
 
 class PairMemo:
-    """:func:`compare_pairs` over one list of landmarks under one config, each (query,
-    candidate) pair compared once: a run links tracks with the matcher, then builds the
-    sequential factors from the same pairs in every optimisation round."""
+    """:func:`compare_pairs` of views of one pass (``same_heading``) over one list of
+    landmarks under one config, each (query, candidate) pair compared once: a run links
+    tracks with the matcher, then builds the sequential factors from the same pairs in every
+    optimisation round."""
 
     def __init__(self, landmarks: Sequence[Landmark], config: MatchingConfigLike = None) -> None:
         self._landmarks = list(landmarks)
@@ -107,7 +114,7 @@ class PairMemo:
         keys = [(int(i), int(j)) for i, j in pairs]
         missing = [k for k in dict.fromkeys(keys) if k not in self._done]
         if missing:
-            found = _core.compare_pairs(self._landmarks, missing, self._config)
+            found = _core.compare_pairs(self._landmarks, missing, self._config, True)
             self._done.update(zip(missing, found, strict=True))
         return [self._done[k] for k in keys]
 

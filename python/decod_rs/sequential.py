@@ -12,7 +12,7 @@ For every track (:mod:`decod_rs.tracks`) its consecutive views from different an
 compared with the matcher (:func:`decod_rs.matching.compare`); a pair becomes a 5-DoF factor
 (the loop factor of Eq. 3, between two anchors of one pass) only if
 
-- the descriptors confirm it: same heading, chance agreement below
+- the descriptors confirm it: compared under the pass's own heading only, chance agreement below
   ``matching.false_alarm_rate`` (one candidate) and an axial offset within the verification
   window;
 - it agrees with the odometry: the implied correction is within

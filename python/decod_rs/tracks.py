@@ -12,8 +12,8 @@ chain into one track.
 The radius alone is not enough when the odometry stalls: with joints 1 m apart and an
 odometry reporting 60 % of the distance, views of two joints taken two anchors apart landed
 within 1 cm of each other in the odometry frame (simulated hume pipe). So a link also needs
-the descriptors to agree (``confirm``: the matcher verifies the pair, same heading, chance
-agreement below ``matching.false_alarm_rate``).
+the descriptors to agree (``confirm``: the matcher verifies the pair under the pass's own
+heading only, chance agreement below ``matching.false_alarm_rate``).
 
 The matcher uses the tracks as the database's physical boundary ids: every view is kept (a
 query is compared with the view taken from the most similar distance), but the views of one

@@ -261,17 +261,22 @@ fn compare(
     Ok(PyPairResult { inner })
 }
 
-/// Many comparisons among `landmarks` (each prepared once), pairs in parallel, GIL released.
+/// Many comparisons among `landmarks` (each prepared once), pairs in parallel, GIL released;
+/// `same_heading`: under 0 degrees only (views of one pass).
 #[pyfunction]
+#[pyo3(signature = (landmarks, pairs, config_json, same_heading = false))]
 fn compare_pairs(
     py: Python<'_>,
     landmarks: Vec<PyRef<'_, PyLandmark>>,
     pairs: Vec<(usize, usize)>,
     config_json: &str,
+    same_heading: bool,
 ) -> PyResult<Vec<PyPairResult>> {
     let cfg = config_from_json(config_json)?;
     let ls = landmarks_of(&landmarks);
-    let results = detached(py, move || matching::compare_pairs(&ls, &pairs, &cfg))?;
+    let results = detached(py, move || {
+        matching::compare_pairs(&ls, &pairs, &cfg, same_heading)
+    })?;
     Ok(results
         .into_iter()
         .map(|inner| PyPairResult { inner })
