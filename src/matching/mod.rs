@@ -345,21 +345,42 @@ pub fn compare_pairs(
                 .transpose()
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok(pairs
+    // Pairs grouped by their query: its query-side factors are built once per query, not
+    // once per pair (a track's view is compared with each of its neighbours).
+    let mut by_query: Vec<Vec<usize>> = vec![Vec::new(); landmarks.len()];
+    for (k, &(i, _)) in pairs.iter().enumerate() {
+        by_query[i].push(k);
+    }
+    let found: Vec<Vec<(usize, PairResult)>> = by_query
         .par_iter()
-        .filter_map(|&(i, j)| match (&prepared[i], &prepared[j]) {
-            (Some(q), Some(c)) if same_heading => {
-                let side = QuerySide::new(q, &shape);
-                let mut pair = compare_heading(q, &side, c, Heading::Forward, cfg, &shape);
-                if cfg.verification {
-                    pair.chance = pair_chance(q, c, &pair, cfg);
-                }
-                Some(pair)
-            }
-            (Some(q), Some(c)) => Some(compare_with_chance(q, c, cfg, &shape)),
-            _ => None,
+        .enumerate()
+        .filter(|(_, ks)| !ks.is_empty())
+        .map(|(i, ks)| {
+            let Some(q) = &prepared[i] else {
+                return Vec::new();
+            };
+            let side = QuerySide::new(q, &shape);
+            ks.iter()
+                .filter_map(|&k| {
+                    let c = prepared[pairs[k].1].as_ref()?;
+                    let mut pair = if same_heading {
+                        compare_heading(q, &side, c, Heading::Forward, cfg, &shape)
+                    } else {
+                        compare_prepared(q, &side, c, cfg, &shape)
+                    };
+                    if cfg.verification {
+                        pair.chance = pair_chance(q, c, &pair, cfg);
+                    }
+                    Some((k, pair))
+                })
+                .collect()
         })
-        .collect())
+        .collect();
+    let mut out: Vec<Option<PairResult>> = vec![None; pairs.len()];
+    for (k, pair) in found.into_iter().flatten() {
+        out[k] = Some(pair);
+    }
+    Ok(out.into_iter().flatten().collect())
 }
 
 /// [`compare_prepared`] plus the pair's null-model chance.
