@@ -42,6 +42,9 @@ pub fn wrap_col(c: usize, d: isize, cols: usize) -> usize {
 
 /// Separable Gaussian smoothing of `values` (row-major `rows x cols`), circular along
 /// columns, clipped along rows.
+/// The value an empty `f64` iterator sums to (the start of every `Iterator::sum`).
+pub(crate) const SUM_START: f64 = -0.0;
+
 fn smooth(values: &[f64], rows: usize, cols: usize, sigma_r: f64, sigma_c: f64) -> Vec<f64> {
     let kernel = |sigma: f64| -> Vec<f64> {
         let half = (3.0 * sigma).ceil() as isize;
@@ -59,12 +62,15 @@ fn smooth(values: &[f64], rows: usize, cols: usize, sigma_r: f64, sigma_c: f64) 
         for (k, v) in padded.iter_mut().enumerate() {
             *v = row[(k + cols - hc % cols) % cols];
         }
-        for (c, out) in tmp[r * cols..(r + 1) * cols].iter_mut().enumerate() {
-            *out = kc
-                .iter()
-                .zip(&padded[c..c + kc.len()])
-                .map(|(w, v)| w * v)
-                .sum();
+        // Tap by tap over the whole row (vectorises across columns); each column still sums
+        // its taps in order from the same start as an iterator sum, so the bits are those
+        // of the per-column dot products this replaced.
+        let dst = &mut tmp[r * cols..(r + 1) * cols];
+        dst.fill(SUM_START);
+        for (k, w) in kc.iter().enumerate() {
+            dst.iter_mut()
+                .zip(&padded[k..k + cols])
+                .for_each(|(d, v)| *d += w * v);
         }
     }
     // Along z: clipped at the ends, as whole-row axpys.

@@ -655,3 +655,11 @@ fn short_list_is_widened_by_the_boundaries_beside_its_best() {
     assert!(db.set_positions(&[41], &[[0.0; 3]]).is_err());
     assert!(db.set_positions(&[0, 1], &[[0.0; 3]]).is_err());
 }
+
+#[test]
+fn keypoint_smoothing_starts_its_sums_where_an_iterator_sum_does() {
+    // The row convolution replaced per-column `Iterator::sum`s; same bits need the same
+    // start (-0.0 or +0.0 decides the sign of an all-zero sum).
+    let empty: f64 = std::iter::empty::<f64>().sum();
+    assert_eq!(empty.to_bits(), super::keypoints::SUM_START.to_bits());
+}
