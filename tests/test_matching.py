@@ -52,6 +52,31 @@ def test_pairs_of_one_pass_are_compared_under_its_own_heading_only() -> None:
     assert [r.heading_deg for r in memo.compare([(0, 1), (0, 2)])] == [0.0, 0.0]
 
 
+def test_a_runs_views_prepared_once_give_the_database_the_same_answers() -> None:
+    # The pipeline prepares each landmark once (PairMemo.views) for its track links, its
+    # database and its queries: the answers equal those of the paths that prepare their own.
+    from decod_rs.matching import PairMemo
+
+    db_views = [synthetic_landmark(2, j, stamp=float(j), view_seed=j) for j in range(12)]
+    queries = [
+        synthetic_landmark(2, j, stamp=500.0 + j, view_seed=50 + j, reversed=j % 2 == 1)
+        for j in range(0, 12, 3)
+    ]
+    memo = PairMemo(db_views + queries, CFG)
+    fresh, shared = LandmarkDatabase(CFG), LandmarkDatabase(CFG)
+    fresh.extend(db_views, list(range(12)))
+    shared.extend_prepared(memo.views, list(range(12)), list(range(12)))
+    want = fresh.query_batch(queries)
+    got = shared.query_batch_prepared(memo.views, list(range(12, 16)))
+    assert [r.to_json() for r in got] == [r.to_json() for r in want]
+    assert sum(r.accepted for r in got) >= 3
+    assert [r.candidate_index for r in got if r.accepted] == [
+        r.candidate_index for r in want if r.accepted
+    ]
+    with pytest.raises(ValueError, match="16 out of range for 16 views"):
+        shared.query_batch_prepared(memo.views, [16])
+
+
 def test_half_missing_and_misaligned_views_match() -> None:
     a = synthetic_landmark(1, 6, view_seed=1, random_view=False)
     half = synthetic_landmark(

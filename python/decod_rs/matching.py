@@ -107,14 +107,33 @@ class PairMemo:
     def __init__(self, landmarks: Sequence[Landmark], config: MatchingConfigLike = None) -> None:
         self._landmarks = list(landmarks)
         self._config = matching_config_json(config)
+        self._views: _core.PreparedViews | None = None
+        self._released = False
         self._done: dict[tuple[int, int], PairResult] = {}
+
+    @property
+    def views(self) -> _core.PreparedViews:
+        """Every landmark prepared for the matcher once (on first use): the comparisons
+        here and the run's database and queries (:meth:`LandmarkDatabase.extend_prepared`)
+        share them until :meth:`release_views`."""
+        if self._views is None:
+            self._views = _core.PreparedViews(self._landmarks, self._config)
+        return self._views
+
+    def release_views(self) -> None:
+        """Free the prepared views (277 KB a landmark); later comparisons prepare only the
+        landmarks they use."""
+        self._views, self._released = None, True
 
     def compare(self, pairs: Sequence[tuple[int, int]]) -> list[PairResult]:
         """Results in the order of ``pairs`` (see :func:`compare_pairs`)."""
         keys = [(int(i), int(j)) for i, j in pairs]
         missing = [k for k in dict.fromkeys(keys) if k not in self._done]
         if missing:
-            found = _core.compare_pairs(self._landmarks, missing, self._config, True)
+            if self._released:
+                found = _core.compare_pairs(self._landmarks, missing, self._config, True)
+            else:
+                found = self.views.compare_pairs(missing, True)
             self._done.update(zip(missing, found, strict=True))
         return [self._done[k] for k in keys]
 
@@ -181,6 +200,30 @@ class LandmarkDatabase:
         if placed is not None:
             self.set_positions(indices, placed)
         return indices
+
+    def extend_prepared(
+        self,
+        views: _core.PreparedViews,
+        indices: Sequence[int],
+        boundaries: Sequence[int],
+        positions: ArrayLike | None = None,
+    ) -> list[int]:
+        """:meth:`extend` with landmarks ``indices`` of ``views`` (:attr:`PairMemo.views`,
+        prepared under this database's config): nothing is prepared twice."""
+        idx = [int(i) for i in indices]
+        placed = None if positions is None else np.asarray(positions, dtype=np.float64)
+        if placed is not None and placed.shape != (len(idx), 3):
+            raise ValueError(f"positions: shape {placed.shape} for {len(idx)} landmarks")
+        stored = self._db.extend_prepared(views, idx, [int(b) for b in boundaries])
+        if placed is not None:
+            self.set_positions(stored, placed)
+        return stored
+
+    def query_batch_prepared(
+        self, views: _core.PreparedViews, indices: Sequence[int], *, cross_session: bool = False
+    ) -> list[QueryResult]:
+        """:meth:`query_batch` with landmarks ``indices`` of ``views`` as the queries."""
+        return self._db.query_batch_prepared(views, [int(i) for i in indices], cross_session)
 
     def boundaries(self) -> list[int]:
         """The physical boundary id of every stored view."""

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs import _core
-from decod_rs._core import Landmark, QueryResult
+from decod_rs._core import Landmark, PreparedViews, QueryResult
 from decod_rs.aliasing import aliasing
 from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
@@ -163,10 +163,12 @@ def _match(
     cfg: Config,
     mode: str,
     split: float | None,
+    views: PreparedViews,
 ) -> tuple[list[QueryResult], str, list[int]]:
     """Queries and their top-1 results, the mode used, and the landmark behind each
     database index. Every view goes into the database under its track (physical boundary)
-    id, placed at ``where`` (N, 3), its origin in the odometry frame."""
+    id, placed at ``where`` (N, 3), its origin in the odometry frame; ``views``: the
+    landmarks already prepared for the matcher (batch mode)."""
     db = LandmarkDatabase(cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
@@ -176,13 +178,11 @@ def _match(
                 "--mode batch: the trajectory has no return leg to query with (use --mode online)"
             )
         outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
-        db.extend(
-            [landmarks[k] for k in outbound],
-            [int(tracks[k]) for k in outbound],
-            where[outbound].reshape(-1, 3),
+        db.extend_prepared(
+            views, outbound, [int(tracks[k]) for k in outbound], where[outbound].reshape(-1, 3)
         )
-        queries = [lm for lm in landmarks if lm.submap_stamp > split]
-        return db.query_batch(queries), mode, outbound
+        queries = [k for k, lm in enumerate(landmarks) if lm.submap_stamp > split]
+        return db.query_batch_prepared(views, queries), mode, outbound
     results = []
     order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
     for k in order:
@@ -370,7 +370,10 @@ def _match_and_select(
         same_boundary(ex.landmarks, m, pairs),
     )
     where = world_origins(ex.landmarks, anchors)
-    results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split)
+    results, used_mode, db_order = _match(
+        ex.landmarks, tracks, where, cfg, mode, split, pairs.views
+    )
+    pairs.release_views()
     views = views_per_landmark(tracks)
     tracked = tracked_loops(results, ex.landmarks, views, views[db_order])
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m, tracked=tracked)

@@ -117,7 +117,8 @@ struct SavedDatabase {
 pub struct LandmarkDatabase {
     config: MatchingConfig,
     shape: PatchShape,
-    entries: Vec<PreparedLandmark>,
+    /// Shared with the run's prepared views (`super::prepare_views`) when stored from them.
+    entries: Vec<Arc<PreparedLandmark>>,
     /// Physical boundary of each entry: views sharing an id are one candidate, never each
     /// other's runner-up, and count once among the candidates compared.
     boundaries: Vec<u64>,
@@ -227,7 +228,7 @@ impl LandmarkDatabase {
         let prepared = PreparedLandmark::new(Arc::new(landmark), &self.config, &self.shape)?;
         self.coarse
             .push(prepared.coarse.first().map_or(&[][..], |v| &v[..]));
-        self.entries.push(prepared);
+        self.entries.push(Arc::new(prepared));
         self.positions.push([f64::NAN; 3]);
         self.boundaries.push(boundary);
         self.distinct.insert(boundary);
@@ -308,8 +309,47 @@ impl LandmarkDatabase {
         }
         let prepared = landmarks
             .into_par_iter()
-            .map(|l| PreparedLandmark::new(Arc::new(l), &self.config, &self.shape))
+            .map(|l| PreparedLandmark::new(Arc::new(l), &self.config, &self.shape).map(Arc::new))
             .collect::<Result<Vec<_>>>()?;
+        self.store(prepared, boundaries)
+    }
+
+    /// [`Self::extend_views`] with landmarks already prepared under `cfg`
+    /// ([`super::prepare_views`]); an error unless `cfg` is the database's own config (the
+    /// entries would not compare like prepared ones). The entries share the views' data.
+    pub fn extend_prepared(
+        &mut self,
+        prepared: Vec<Arc<PreparedLandmark>>,
+        boundaries: Vec<u64>,
+        cfg: &MatchingConfig,
+    ) -> Result<Vec<usize>> {
+        if *cfg != self.config {
+            return Err(DecodError::invalid(
+                "prepared",
+                "views prepared under another matching config than the database's",
+            ));
+        }
+        if boundaries.len() != prepared.len() {
+            return Err(DecodError::invalid(
+                "boundaries",
+                format!("{} ids for {} landmarks", boundaries.len(), prepared.len()),
+            ));
+        }
+        if let (Some(first), Some(p)) = (self.entries.first(), prepared.first()) {
+            check_grids(&first.landmark, &p.landmark)?;
+        }
+        for pair in prepared.windows(2) {
+            check_grids(&pair[0].landmark, &pair[1].landmark)?;
+        }
+        self.store(prepared, boundaries)
+    }
+
+    /// Appends prepared entries (grids checked) with their boundary ids.
+    fn store(
+        &mut self,
+        prepared: Vec<Arc<PreparedLandmark>>,
+        boundaries: Vec<u64>,
+    ) -> Result<Vec<usize>> {
         let start = self.entries.len();
         for p in &prepared {
             self.coarse
@@ -357,6 +397,33 @@ impl LandmarkDatabase {
             .collect()
     }
 
+    /// [`Self::query_batch_with`] for queries already prepared under `cfg`
+    /// ([`super::prepare_views`]); under another config than the database's, each query is
+    /// prepared again from its landmark (as [`Self::query_batch_with`] does).
+    pub fn query_batch_prepared(
+        &self,
+        queries: &[&PreparedLandmark],
+        cfg: &MatchingConfig,
+        eligibility: Eligibility,
+    ) -> Result<Vec<QueryResult>> {
+        if *cfg != self.config {
+            return queries
+                .par_iter()
+                .map(|q| self.query_with(&q.landmark, cfg, true, eligibility))
+                .collect();
+        }
+        if let (Some(first), Some(q)) = (self.entries.first(), queries.first()) {
+            check_grids(&first.landmark, &q.landmark)?;
+        }
+        for pair in queries.windows(2) {
+            check_grids(&pair[0].landmark, &pair[1].landmark)?;
+        }
+        Ok(queries
+            .par_iter()
+            .map(|q| self.query_prepared(q, &self.entries, &self.shape, cfg, true, eligibility))
+            .collect())
+    }
+
     /// Online mode: query against every landmark already in the database (all older ones),
     /// then add it. Returns the query result and the new landmark's index.
     pub fn query_online(
@@ -389,12 +456,12 @@ impl LandmarkDatabase {
     fn candidates(
         &self,
         q: &PreparedLandmark,
-        entries: &[PreparedLandmark],
+        entries: &[Arc<PreparedLandmark>],
         cfg: &MatchingConfig,
         parallel: bool,
         eligibility: Eligibility,
     ) -> (Vec<usize>, Vec<usize>) {
-        let ok = |(i, c): (usize, &PreparedLandmark)| {
+        let ok = |(i, c): (usize, &Arc<PreparedLandmark>)| {
             (eligibility == Eligibility::CrossSession || eligible_prepared(q, c, cfg)).then_some(i)
         };
         let eligible: Vec<usize> = if parallel {
@@ -468,7 +535,7 @@ impl LandmarkDatabase {
         }
         // Entries prepared with another config are re-prepared (correct, slower).
         let reprepared;
-        let (entries, shape): (&[PreparedLandmark], PatchShape) =
+        let (entries, shape): (&[Arc<PreparedLandmark>], PatchShape) =
             if same_preparation(&self.config, cfg) {
                 (&self.entries, self.shape.clone())
             } else {
@@ -476,17 +543,30 @@ impl LandmarkDatabase {
                 reprepared = self
                     .entries
                     .iter()
-                    .map(|e| PreparedLandmark::new(e.landmark.clone(), cfg, &shape))
+                    .map(|e| PreparedLandmark::new(e.landmark.clone(), cfg, &shape).map(Arc::new))
                     .collect::<Result<Vec<_>>>()?;
                 (&reprepared, shape)
             };
         let q = PreparedLandmark::new_query(Arc::new(query.clone()), cfg, &shape)?;
-        let side = QuerySide::new(&q, &shape);
-        let (compared, eligible) = self.candidates(&q, entries, cfg, parallel, eligibility);
+        Ok(self.query_prepared(&q, entries, &shape, cfg, parallel, eligibility))
+    }
+
+    /// The query, prepared like `entries` (with all its coarse signatures), against them.
+    fn query_prepared(
+        &self,
+        q: &PreparedLandmark,
+        entries: &[Arc<PreparedLandmark>],
+        shape: &PatchShape,
+        cfg: &MatchingConfig,
+        parallel: bool,
+        eligibility: Eligibility,
+    ) -> QueryResult {
+        let side = QuerySide::new(q, shape);
+        let (compared, eligible) = self.candidates(q, entries, cfg, parallel, eligibility);
         let work = |&index: &usize| {
             (
                 index,
-                compare_prepared(&q, &side, &entries[index], cfg, &shape),
+                compare_prepared(q, &side, &entries[index], cfg, shape),
             )
         };
         let run = |indices: &[usize]| -> Vec<(usize, PairResult)> {
@@ -518,12 +598,12 @@ impl LandmarkDatabase {
         } else {
             distinct_boundaries(&self.boundaries, &eligible)
         };
-        let mut result = decide(&q, entries, &self.boundaries, &pairs, family, cfg);
+        let mut result = decide(q, entries, &self.boundaries, &pairs, family, cfg);
         result.eligible = eligible.len();
         if eligible.is_empty() && !entries.is_empty() {
             result.rejection = Some(Rejection::Ineligible);
         }
-        Ok(result)
+        result
     }
 }
 
@@ -615,7 +695,7 @@ fn judge(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> Optio
 /// Ranks the candidates and applies the acceptance rule (module docs).
 fn decide(
     q: &PreparedLandmark,
-    entries: &[PreparedLandmark],
+    entries: &[Arc<PreparedLandmark>],
     boundaries: &[u64],
     pairs: &[(usize, PairResult)],
     family: usize,

@@ -319,15 +319,7 @@ pub fn compare_pairs(
     same_heading: bool,
 ) -> Result<Vec<PairResult>> {
     use rayon::prelude::*;
-    if let Some(&(i, j)) = pairs
-        .iter()
-        .find(|&&(i, j)| i >= landmarks.len() || j >= landmarks.len())
-    {
-        return Err(DecodError::invalid(
-            "pairs",
-            format!("({i}, {j}) out of range for {} landmarks", landmarks.len()),
-        ));
-    }
+    check_pair_indices(pairs, landmarks.len())?;
     for &(i, j) in pairs {
         check_grids(&landmarks[i], &landmarks[j])?;
     }
@@ -345,9 +337,79 @@ pub fn compare_pairs(
                 .transpose()
         })
         .collect::<Result<Vec<_>>>()?;
-    // Pairs grouped by their query: its query-side factors are built once per query, not
-    // once per pair (a track's view is compared with each of its neighbours).
-    let mut by_query: Vec<Vec<usize>> = vec![Vec::new(); landmarks.len()];
+    let get = |i: usize| prepared.get(i).and_then(Option::as_ref);
+    Ok(compare_prepared_pairs(
+        get,
+        pairs,
+        cfg,
+        &shape,
+        same_heading,
+    ))
+}
+
+/// Every landmark of a run prepared once, as a query (all coarse signatures), in parallel:
+/// the within-pass comparisons ([`compare_view_pairs`]), the database entries
+/// ([`LandmarkDatabase::extend_prepared`]) and the queries
+/// ([`LandmarkDatabase::query_batch_prepared`]) then share them (beyond the paper: each
+/// landmark was prepared twice per round, ~0.1 s of a 64-beam round). The landmarks must
+/// share one grid.
+pub fn prepare_views(
+    landmarks: &[Arc<Landmark>],
+    cfg: &MatchingConfig,
+) -> Result<Vec<Arc<PreparedLandmark>>> {
+    use rayon::prelude::*;
+    for pair in landmarks.windows(2) {
+        check_grids(&pair[0], &pair[1])?;
+    }
+    let shape = PatchShape::new(cfg);
+    landmarks
+        .par_iter()
+        .map(|l| PreparedLandmark::new_query(l.clone(), cfg, &shape).map(Arc::new))
+        .collect()
+}
+
+/// [`compare_pairs`] on views from [`prepare_views`] under the same `cfg`.
+pub fn compare_view_pairs(
+    views: &[Arc<PreparedLandmark>],
+    pairs: &[(usize, usize)],
+    cfg: &MatchingConfig,
+    same_heading: bool,
+) -> Result<Vec<PairResult>> {
+    check_pair_indices(pairs, views.len())?;
+    let shape = PatchShape::new(cfg);
+    Ok(compare_prepared_pairs(
+        |i| views.get(i).map(|v| &**v),
+        pairs,
+        cfg,
+        &shape,
+        same_heading,
+    ))
+}
+
+/// An error naming the first pair with an index beyond `n` landmarks.
+fn check_pair_indices(pairs: &[(usize, usize)], n: usize) -> Result<()> {
+    match pairs.iter().find(|&&(i, j)| i >= n || j >= n) {
+        Some(&(i, j)) => Err(DecodError::invalid(
+            "pairs",
+            format!("({i}, {j}) out of range for {n} landmarks"),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// The pairs' comparisons, in their order, on prepared landmarks (`get(i)`), in parallel.
+/// Pairs are grouped by their query: its query-side factors are built once per query, not
+/// once per pair (a track's view is compared with each of its neighbours).
+fn compare_prepared_pairs<'a>(
+    get: impl Fn(usize) -> Option<&'a PreparedLandmark> + Sync,
+    pairs: &[(usize, usize)],
+    cfg: &MatchingConfig,
+    shape: &PatchShape,
+    same_heading: bool,
+) -> Vec<PairResult> {
+    use rayon::prelude::*;
+    let n = pairs.iter().map(|&(i, _)| i + 1).max().unwrap_or(0);
+    let mut by_query: Vec<Vec<usize>> = vec![Vec::new(); n];
     for (k, &(i, _)) in pairs.iter().enumerate() {
         by_query[i].push(k);
     }
@@ -356,17 +418,17 @@ pub fn compare_pairs(
         .enumerate()
         .filter(|(_, ks)| !ks.is_empty())
         .map(|(i, ks)| {
-            let Some(q) = &prepared[i] else {
+            let Some(q) = get(i) else {
                 return Vec::new();
             };
-            let side = QuerySide::new(q, &shape);
+            let side = QuerySide::new(q, shape);
             ks.iter()
                 .filter_map(|&k| {
-                    let c = prepared[pairs[k].1].as_ref()?;
+                    let c = get(pairs[k].1)?;
                     let mut pair = if same_heading {
-                        compare_heading(q, &side, c, Heading::Forward, cfg, &shape)
+                        compare_heading(q, &side, c, Heading::Forward, cfg, shape)
                     } else {
-                        compare_prepared(q, &side, c, cfg, &shape)
+                        compare_prepared(q, &side, c, cfg, shape)
                     };
                     if cfg.verification {
                         pair.chance = pair_chance(q, c, &pair, cfg);
@@ -380,7 +442,7 @@ pub fn compare_pairs(
     for (k, pair) in found.into_iter().flatten() {
         out[k] = Some(pair);
     }
-    Ok(out.into_iter().flatten().collect())
+    out.into_iter().flatten().collect()
 }
 
 /// [`compare_prepared`] plus the pair's null-model chance.

@@ -663,3 +663,53 @@ fn keypoint_smoothing_starts_its_sums_where_an_iterator_sum_does() {
     let empty: f64 = std::iter::empty::<f64>().sum();
     assert_eq!(empty.to_bits(), super::keypoints::SUM_START.to_bits());
 }
+
+#[test]
+fn views_prepared_once_compare_and_query_like_fresh_ones() {
+    // A run prepares each landmark once and shares it between the within-pass pairs, the
+    // database and the queries: every result equals the one of the paths that prepare
+    // their own (pairs under both headings and under one, coarse retrieval with 200 entries).
+    let c = cfg();
+    let (db_landmarks, queries) = retrieval_set(Grid::tunnel(), 200, 20, 5);
+    let all: Vec<Arc<Landmark>> = db_landmarks
+        .iter()
+        .chain(&queries)
+        .cloned()
+        .map(Arc::new)
+        .collect();
+    let views = prepare_views(&all, &c).unwrap();
+    let pairs: Vec<(usize, usize)> = (0..all.len() - 1)
+        .map(|i| (i, (i * 7 + 3) % all.len()))
+        .collect();
+    for same_heading in [false, true] {
+        assert_eq!(
+            compare_view_pairs(&views, &pairs, &c, same_heading).unwrap(),
+            compare_pairs(&all, &pairs, &c, same_heading).unwrap()
+        );
+    }
+    assert!(compare_view_pairs(&views, &[(0, all.len())], &c, false).is_err());
+
+    let n = db_landmarks.len();
+    let ids: Vec<u64> = (0..n as u64).map(|k| k / 2).collect();
+    let mut fresh = LandmarkDatabase::new(&c);
+    fresh.extend_views(db_landmarks, ids.clone()).unwrap();
+    let mut shared = LandmarkDatabase::new(&c);
+    shared
+        .extend_prepared(views[..n].to_vec(), ids.clone(), &c)
+        .unwrap();
+    let picked: Vec<&PreparedLandmark> = views[n..].iter().map(|v| &**v).collect();
+    let got = shared
+        .query_batch_prepared(&picked, &c, database::Eligibility::WithinRun)
+        .unwrap();
+    assert_eq!(got, fresh.query_batch(&queries, &c).unwrap());
+    assert!(got.iter().filter(|r| r.accepted).count() >= 5);
+    // Views prepared under another config are refused, not stored.
+    let mut other = c.clone();
+    other.max_keypoints += 1;
+    let mut db = LandmarkDatabase::new(&other);
+    assert!(
+        db.extend_prepared(views[..2].to_vec(), vec![0, 1], &c)
+            .is_err()
+    );
+    assert!(db.is_empty());
+}

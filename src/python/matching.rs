@@ -283,6 +283,67 @@ fn compare_pairs(
         .collect())
 }
 
+/// A run's landmarks prepared once for the matcher (see `decod::matching::prepare_views`):
+/// the within-pass comparisons, the database entries and the queries share them.
+#[pyclass(name = "PreparedViews", module = "decod_rs._core", frozen)]
+pub(crate) struct PyPreparedViews {
+    views: Vec<Arc<matching::PreparedLandmark>>,
+    config: MatchingConfig,
+}
+
+#[pymethods]
+impl PyPreparedViews {
+    #[new]
+    fn py_new(
+        py: Python<'_>,
+        landmarks: Vec<PyRef<'_, PyLandmark>>,
+        config_json: &str,
+    ) -> PyResult<Self> {
+        let config = config_from_json(config_json)?;
+        let ls = landmarks_of(&landmarks);
+        let cfg = config.clone();
+        let views = detached(py, move || matching::prepare_views(&ls, &cfg))?;
+        Ok(Self { views, config })
+    }
+    fn __len__(&self) -> usize {
+        self.views.len()
+    }
+    /// `compare_pairs` on the prepared views (indices into the landmarks given).
+    #[pyo3(signature = (pairs, same_heading = false))]
+    fn compare_pairs(
+        &self,
+        py: Python<'_>,
+        pairs: Vec<(usize, usize)>,
+        same_heading: bool,
+    ) -> PyResult<Vec<PyPairResult>> {
+        let (views, cfg) = (&self.views, &self.config);
+        let results = detached(py, move || {
+            matching::compare_view_pairs(views, &pairs, cfg, same_heading)
+        })?;
+        Ok(results
+            .into_iter()
+            .map(|inner| PyPairResult { inner })
+            .collect())
+    }
+}
+
+impl PyPreparedViews {
+    /// The views at `indices`, or an error naming the first index out of range.
+    fn pick(&self, indices: &[usize]) -> PyResult<Vec<&Arc<matching::PreparedLandmark>>> {
+        indices
+            .iter()
+            .map(|&i| {
+                self.views.get(i).ok_or_else(|| {
+                    to_py_err(DecodError::invalid(
+                        "indices",
+                        format!("{i} out of range for {} views", self.views.len()),
+                    ))
+                })
+            })
+            .collect()
+    }
+}
+
 /// A landmark database (see `decod::matching::LandmarkDatabase`).
 #[pyclass(name = "LandmarkDatabase", module = "decod_rs._core")]
 pub(crate) struct PyLandmarkDatabase {
@@ -327,6 +388,46 @@ impl PyLandmarkDatabase {
             .collect();
         let db = &mut self.inner;
         detached(py, move || db.extend_views(ls, boundaries))
+    }
+    /// Stores the views at `indices` of `views` (prepared under this database's config),
+    /// each under its physical boundary id; returns their indices.
+    fn extend_prepared(
+        &mut self,
+        py: Python<'_>,
+        views: PyRef<'_, PyPreparedViews>,
+        indices: Vec<usize>,
+        boundaries: Vec<u64>,
+    ) -> PyResult<Vec<usize>> {
+        let picked: Vec<Arc<matching::PreparedLandmark>> =
+            views.pick(&indices)?.into_iter().cloned().collect();
+        let cfg = views.config.clone();
+        let db = &mut self.inner;
+        detached(py, move || db.extend_prepared(picked, boundaries, &cfg))
+    }
+    /// Batch queries with the views at `indices` of `views` (see `query_batch`).
+    fn query_batch_prepared(
+        &self,
+        py: Python<'_>,
+        views: PyRef<'_, PyPreparedViews>,
+        indices: Vec<usize>,
+        cross_session: bool,
+    ) -> PyResult<Vec<PyQueryResult>> {
+        let picked: Vec<&matching::PreparedLandmark> =
+            views.pick(&indices)?.into_iter().map(|v| &**v).collect();
+        let cfg = &views.config;
+        let db = &self.inner;
+        let eligibility = if cross_session {
+            Eligibility::CrossSession
+        } else {
+            Eligibility::WithinRun
+        };
+        let results = detached(py, move || {
+            db.query_batch_prepared(&picked, cfg, eligibility)
+        })?;
+        Ok(results
+            .into_iter()
+            .map(|inner| PyQueryResult { inner })
+            .collect())
     }
     /// The physical boundary id of every entry.
     fn boundaries(&self) -> Vec<u64> {
@@ -543,6 +644,7 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyPairResult>()?;
     m.add_class::<PyQueryResult>()?;
     m.add_class::<PyLandmarkDatabase>()?;
+    m.add_class::<PyPreparedViews>()?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
     m.add_function(wrap_pyfunction!(compare_pairs, m)?)?;
     m.add_function(wrap_pyfunction!(descriptor_change, m)?)?;
