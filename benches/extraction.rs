@@ -1,11 +1,15 @@
 //! Extraction on a 100k-point pipe submap (target <= 20 ms, DESIGN.md "Targets"), per stage
-//! and end to end, with element throughput. `cargo bench --bench extraction`.
+//! and end to end, with element throughput; and the accumulation of a 64-beam window into a
+//! submap (scans moved into the anchor frame, voxel-filtered). `cargo bench --bench extraction`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use decod::DecodConfig;
 use decod::axis::estimate_axis;
 use decod::extract::extract_landmarks;
+use decod::geometry::Pose;
+use decod::scan::Scan;
 use decod::submap::Submap;
+use nalgebra::{Translation3, UnitQuaternion};
 
 /// A 3 m pipe of radius 0.3 m along a tilted axis, with two grooves, deterministic.
 fn pipe_submap(n: usize) -> Submap {
@@ -68,7 +72,57 @@ fn horseshoe_submap(n: usize) -> Submap {
         .unwrap_or_else(|e| unreachable!("{e}"))
 }
 
+/// A 64-beam spinning sensor's window in a 5 m tunnel: `scans` scans of 512 columns x 64
+/// beams over 45 degrees (32,768 points), 0.1 m apart along the axis, a little yaw; the
+/// walls at 2.5 m with a 2 cm ripple, the floor 1.5 m below the sensor.
+fn spinning_window(scans: usize) -> Vec<Scan> {
+    let points: Vec<[f32; 3]> = (0..512)
+        .flat_map(|c| (0..64).map(move |b| (c, b)))
+        .map(|(c, b)| {
+            let az = c as f64 * std::f64::consts::TAU / 512.0;
+            let el = (b as f64 / 63.0 - 0.5) * 45f64.to_radians();
+            let dir = [az.cos() * el.cos(), az.sin() * el.cos(), el.sin()];
+            let across = (dir[1].powi(2) + dir[2].powi(2)).sqrt().max(1e-9);
+            let wall = 2.5 + 0.02 * (7.0 * az).sin();
+            let floor = if dir[2] < 0.0 {
+                1.5 / -dir[2]
+            } else {
+                f64::INFINITY
+            };
+            let range = (wall / across).min(floor).min(40.0);
+            [
+                (dir[0] * range) as f32,
+                (dir[1] * range) as f32,
+                (dir[2] * range) as f32,
+            ]
+        })
+        .collect();
+    (0..scans)
+        .map(|k| Scan {
+            stamp: k as f64 * 0.1,
+            points_in_body: points.clone(),
+            world_from_body: Pose::from_parts(
+                Translation3::new(0.1 * k as f64, 0.0, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.002 * k as f64),
+            ),
+            specific_force_in_body: Some([0.0, 0.0, 9.81]),
+        })
+        .collect()
+}
+
 fn bench(c: &mut Criterion) {
+    // The automatic configuration's window for the simulated horseshoe with 64 beams
+    // (4.7 cm voxels, 12.16 m range, 24 scans): 0.79 M points into ~0.1 M voxels.
+    let mut window_cfg = DecodConfig::tunnel().submap;
+    (window_cfg.voxel_m, window_cfg.max_range_m) = (0.0474, 12.16);
+    let window = spinning_window(24);
+    let mut group = c.benchmark_group("accumulation");
+    group.throughput(Throughput::Elements(24 * 32_768));
+    group.bench_function("from_scans/64-beam-24-scans", |b| {
+        b.iter(|| Submap::from_scans(std::hint::black_box(&window), 12, &window_cfg))
+    });
+    group.finish();
+
     let cfg = DecodConfig::pipe();
     let mut group = c.benchmark_group("extraction");
     for n in [10_000usize, 100_000] {
