@@ -13,13 +13,16 @@ pub const VOXEL_INDEX_LIMIT: i64 = 1 << 20;
 /// call per coordinate took a tenth of the accumulation.
 #[inline(always)]
 fn voxel_key_of(x: f64, y: f64, z: f64, voxel: f64) -> u64 {
-    let index = |v: f64| {
-        let scaled = v / voxel;
-        let t = scaled as i64;
-        let floor = if (t as f64) > scaled { t - 1 } else { t };
-        ((floor + VOXEL_INDEX_LIMIT) as u64) & 0x1F_FFFF
-    };
+    let index = |v: f64| ((voxel_index(v, voxel) + VOXEL_INDEX_LIMIT) as u64) & 0x1F_FFFF;
     (index(x) << 42) | (index(y) << 21) | index(z)
+}
+
+/// `floor(v / voxel)` as a truncation corrected below zero (see [`voxel_key_of`]).
+#[inline(always)]
+fn voxel_index(v: f64, voxel: f64) -> i64 {
+    let scaled = v / voxel;
+    let t = scaled as i64;
+    if (t as f64) > scaled { t - 1 } else { t }
 }
 
 /// Voxel keys packed from the range window alone, before any point is seen: every kept point
@@ -53,12 +56,7 @@ impl WindowKeys {
     #[inline(always)]
     fn key(&self, x: f64, y: f64, z: f64) -> u32 {
         let max = (1i64 << self.bits) - 1;
-        let index = |v: f64| {
-            let scaled = v / self.voxel;
-            let t = scaled as i64;
-            let floor = if (t as f64) > scaled { t - 1 } else { t };
-            (floor - self.lo).clamp(0, max) as u32
-        };
+        let index = |v: f64| (voxel_index(v, self.voxel) - self.lo).clamp(0, max) as u32;
         (index(x) << (2 * self.bits)) | (index(y) << self.bits) | index(z)
     }
 }
@@ -78,9 +76,8 @@ const DIGIT_BITS: u32 = 11;
 /// run of equal keys averaged. A hash table of the window's voxels (with a write-combining
 /// cache in front) took 45 % of the extraction's CPU on 64-beam logs: a spinning sensor puts
 /// ~1.5 points into a voxel per scan, so nearly every point probed a table of ~100k voxels
-/// out of cache; the sort's passes are sequential. Re-packed keys that fit 32 bits (every
-/// window of the simulated corridors: 24-30 bits) are sorted as 16-byte rows instead of 24:
-/// the passes move memory, and the scatter was 40 % of the accumulation's samples.
+/// out of cache; the sort's passes are sequential. Windows whose keys fit 32 bits from the
+/// range window alone ([`WindowKeys`], every automatic configuration) never come here.
 fn voxel_centroids(mut rows: Vec<Keyed>) -> Vec<[f32; 3]> {
     const SHIFTS: [u32; 3] = [42, 21, 0];
     let field = |k: u64, axis: usize| (k >> SHIFTS[axis]) & 0x1F_FFFF;
@@ -92,25 +89,11 @@ fn voxel_centroids(mut rows: Vec<Keyed>) -> Vec<[f32; 3]> {
         }
     }
     let bits: [u32; 3] = std::array::from_fn(|a| 64 - hi[a].saturating_sub(lo[a]).leading_zeros());
-    let repack = |k: u64| {
-        let c: [u64; 3] = std::array::from_fn(|a| field(k, a) - lo[a]);
-        (c[0] << (bits[1] + bits[2])) | (c[1] << bits[2]) | c[2]
-    };
-    let total = bits.iter().sum();
-    if total <= u32::BITS {
-        // `repack` < 2^total <= 2^32: the narrowing keeps every bit.
-        let mut narrow: Vec<(u32, [f32; 3])> =
-            rows.iter().map(|&(k, q)| (repack(k) as u32, q)).collect();
-        drop(rows);
-        radix_sort(&mut narrow, total);
-        run_means(&narrow)
-    } else {
-        for (k, _) in rows.iter_mut() {
-            *k = repack(*k);
-        }
-        radix_sort(&mut rows, total);
-        run_means(&rows)
+    for (k, _) in rows.iter_mut() {
+        let c: [u64; 3] = std::array::from_fn(|a| field(*k, a) - lo[a]);
+        *k = (c[0] << (bits[1] + bits[2])) | (c[1] << bits[2]) | c[2];
     }
+    sorted_means(rows, bits.iter().sum())
 }
 
 /// The mean position of each run of equal keys, in order (sums in f64, in row order).
@@ -651,9 +634,9 @@ mod tests {
 
     #[test]
     fn voxel_means_agree_on_narrow_and_wide_keys() {
-        // Keys spanning 3 x 5 bits (sorted as u32) and 3 x 13 bits (39 bits: sorted as u64),
+        // Keys spanning 3 x 5 bits and 3 x 13 bits (39 bits, beyond one u32 once re-packed),
         // several points per voxel in scrambled order: each centroid is its voxel's mean, in
-        // key order, whichever width sorted it.
+        // key order, whatever the span.
         for span in [20u64, 6_000] {
             let mut state = 0x2545_F491_4F6C_DD1Du64;
             let mut next = || {

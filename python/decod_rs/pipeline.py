@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs import _core
-from decod_rs._core import Landmark, PreparedViews, QueryResult
+from decod_rs._core import Landmark, QueryResult
 from decod_rs.aliasing import aliasing
 from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
@@ -163,12 +163,12 @@ def _match(
     cfg: Config,
     mode: str,
     split: float | None,
-    views: PreparedViews,
+    pairs: PairMemo,
 ) -> tuple[list[QueryResult], str, list[int]]:
     """Queries and their top-1 results, the mode used, and the landmark behind each
     database index. Every view goes into the database under its track (physical boundary)
-    id, placed at ``where`` (N, 3), its origin in the odometry frame; ``views``: the
-    landmarks already prepared for the matcher (batch mode)."""
+    id, placed at ``where`` (N, 3), its origin in the odometry frame; batch mode takes the
+    landmarks as the track links prepared them (``pairs.views``)."""
     db = LandmarkDatabase(cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
@@ -178,6 +178,7 @@ def _match(
                 "--mode batch: the trajectory has no return leg to query with (use --mode online)"
             )
         outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
+        views = pairs.views
         db.extend_prepared(
             views, outbound, [int(tracks[k]) for k in outbound], where[outbound].reshape(-1, 3)
         )
@@ -370,9 +371,7 @@ def _match_and_select(
         same_boundary(ex.landmarks, m, pairs),
     )
     where = world_origins(ex.landmarks, anchors)
-    results, used_mode, db_order = _match(
-        ex.landmarks, tracks, where, cfg, mode, split, pairs.views
-    )
+    results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split, pairs)
     pairs.release_views()
     views = views_per_landmark(tracks)
     tracked = tracked_loops(results, ex.landmarks, views, views[db_order])

@@ -21,6 +21,15 @@ use crate::matching::database::Eligibility;
 use crate::matching::synthetic::{Grid, JointSurface, Observation, Rng, SurfaceParams};
 use crate::matching::{self, LandmarkDatabase, PairResult, QueryResult};
 
+/// The eligibility rule of a batch query: against an earlier survey, or within the run.
+fn eligibility_of(cross_session: bool) -> Eligibility {
+    if cross_session {
+        Eligibility::CrossSession
+    } else {
+        Eligibility::WithinRun
+    }
+}
+
 fn config_from_json(text: &str) -> PyResult<MatchingConfig> {
     let cfg: MatchingConfig = serde_json::from_str(text)
         .map_err(|e| to_py_err(DecodError::config("matching", e.to_string())))?;
@@ -416,11 +425,7 @@ impl PyLandmarkDatabase {
             views.pick(&indices)?.into_iter().map(|v| &**v).collect();
         let cfg = &views.config;
         let db = &self.inner;
-        let eligibility = if cross_session {
-            Eligibility::CrossSession
-        } else {
-            Eligibility::WithinRun
-        };
+        let eligibility = eligibility_of(cross_session);
         let results = detached(py, move || {
             db.query_batch_prepared(&picked, cfg, eligibility)
         })?;
@@ -488,11 +493,7 @@ impl PyLandmarkDatabase {
             .map(|l| (**l).clone())
             .collect();
         let db = &self.inner;
-        let eligibility = if cross_session {
-            Eligibility::CrossSession
-        } else {
-            Eligibility::WithinRun
-        };
+        let eligibility = eligibility_of(cross_session);
         let results = detached(py, move || db.query_batch_with(&qs, &cfg, eligibility))?;
         Ok(results
             .into_iter()
