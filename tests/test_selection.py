@@ -3,6 +3,7 @@ whose right answer is known by construction."""
 
 from __future__ import annotations
 
+import json
 import math
 from types import SimpleNamespace
 from typing import Any
@@ -217,6 +218,20 @@ def test_auto_schedule_follows_the_speed() -> None:
         2.5 * fast["submap"]["interval_s"], rel=0.01
     )
     assert slow["matching"]["min_time_separation_s"] > fast["matching"]["min_time_separation_s"]
+
+
+def test_auto_report_is_strict_json_when_a_distance_was_never_sampled() -> None:
+    from decod_rs.autoscale import auto_config
+
+    # A sensor that never saw the whole ring ahead: z_near is infinite and taken at the
+    # grazing limit (range: a descriptor length and a radius beyond it), and report.json
+    # says null rather than the non-JSON `Infinity`.
+    cfg, report = auto_config(_probe(0.3, math.inf, 0.4), None)
+    assert report["measured"]["z_near_m"] is None
+    assert report["measured"]["radius_m"] == pytest.approx(0.3)
+    json.dumps(report, allow_nan=False)
+    grazing = 0.3 / math.tan(math.radians(12.0))
+    assert cfg.submap.max_range_m == pytest.approx(grazing + 2 * 0.24 + 0.3, rel=1e-3)
 
 
 def test_tracked_boundaries_recover_each_pass_scale() -> None:

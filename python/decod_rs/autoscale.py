@@ -303,7 +303,11 @@ def auto_config(probe: CorridorProbe, user_toml: Path | None) -> tuple[Config, d
                 merged.setdefault(section, {}).update(values)
     cfg = Config(json.loads(_core.resolve_config_json("tunnel", _toml(merged))))
     report = {
-        "measured": asdict(probe),
+        # JSON has no infinity: a distance never fully sampled is null.
+        "measured": {
+            k: None if isinstance(v, float) and not math.isfinite(v) else v
+            for k, v in asdict(probe).items()
+        },
         "derived": derived,
         "corridor": "pipe" if probe.radius_m < 1.0 else "tunnel",
         "user_overrides": None if user_toml is None else str(user_toml),
