@@ -135,21 +135,7 @@ pub fn detect_boundaries(
             ..Default::default()
         });
     }
-    let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
-    for q in points {
-        zmin = zmin.min(q.z);
-        zmax = zmax.max(q.z);
-    }
-    let nbins = ((zmax - zmin) / bin).floor() as usize + 1;
-    if nbins > MAX_PROFILE_BINS {
-        return Err(DecodError::invalid(
-            "points",
-            format!(
-                "axial extent {:.2} m needs {nbins} profile bins of {bin} m (max {MAX_PROFILE_BINS})",
-                zmax - zmin
-            ),
-        ));
-    }
+    let (zmin, nbins) = profile_extent(points, bin)?;
     let (sum, weight) = axial_profile(points, contour, bottom_mask_deg, cfg, zmin, nbins);
     // 3. Normalised convolutions and their difference.
     let small = normalised_gaussian(&sum, &weight, cfg.dog_sigma_small_m / bin);
@@ -167,23 +153,8 @@ pub fn detect_boundaries(
     let mut spread: Vec<f64> = (0..nbins).filter(|&b| valid[b]).map(|b| dog[b]).collect();
     let dog_sigma = 1.4826 * median_abs(&mut spread);
     let threshold = cfg.min_strength_m.max(cfg.min_snr * dog_sigma);
-    // A candidate is the maximum of |DoG| over +-1 large sigma, all of it valid: a slope cut
-    // by the edge margin (the true maximum may lie beyond it) is not a peak. Side lobes (step 5)
-    // are never peaks and do not hide the response they flank.
-    let lobe: Vec<bool> = (0..nbins)
-        .map(|b| !displaced_as_response(small[b], dog[b]))
-        .collect();
     let w = (cfg.dog_sigma_large_m / bin).ceil().max(1.0) as usize;
-    let mut candidates: Vec<usize> = (w..nbins.saturating_sub(w))
-        .filter(|&b| {
-            let m = dog[b].abs();
-            m >= threshold
-                && !lobe[b]
-                && (b - w..=b + w).all(|j| {
-                    valid[j] && (lobe[j] || dog[j].abs() < m || (j <= b && dog[j].abs() <= m))
-                })
-        })
-        .collect();
+    let mut candidates = local_maxima(&dog, &valid, &small, threshold, w);
     let candidate_count = candidates.len();
     candidates.sort_by(|&i, &j| dog[j].abs().total_cmp(&dog[i].abs()));
     let radius_bins = cfg.nms_radius_m / bin;
@@ -216,6 +187,55 @@ pub fn detect_boundaries(
         candidates: candidate_count,
         peaks,
     })
+}
+
+/// The first profile bin's lower edge (the lowest point's `z`) and the number of bins of
+/// `bin` metres that cover `points` (not empty), at most [`MAX_PROFILE_BINS`].
+fn profile_extent(points: &[ChartPoint], bin: f64) -> Result<(f64, usize)> {
+    let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
+    for q in points {
+        zmin = zmin.min(q.z);
+        zmax = zmax.max(q.z);
+    }
+    let nbins = ((zmax - zmin) / bin).floor() as usize + 1;
+    if nbins > MAX_PROFILE_BINS {
+        return Err(DecodError::invalid(
+            "points",
+            format!(
+                "axial extent {:.2} m needs {nbins} profile bins of {bin} m (max {MAX_PROFILE_BINS})",
+                zmax - zmin
+            ),
+        ));
+    }
+    Ok((zmin, nbins))
+}
+
+/// Step 4's candidates: bins whose `|DoG|` reaches `threshold`, not a side lobe (step 5),
+/// and is the maximum over +-`w` bins (one large sigma), all of them valid: a slope cut by
+/// the edge margin (the true maximum may lie beyond it) is not a peak. Side lobes are never
+/// peaks and do not hide the response they flank. In bin order.
+fn local_maxima(
+    dog: &[f64],
+    valid: &[bool],
+    surface: &[Option<f64>],
+    threshold: f64,
+    w: usize,
+) -> Vec<usize> {
+    let lobe: Vec<bool> = dog
+        .iter()
+        .zip(surface)
+        .map(|(&d, &v)| !displaced_as_response(v, d))
+        .collect();
+    (w..dog.len().saturating_sub(w))
+        .filter(|&b| {
+            let m = dog[b].abs();
+            m >= threshold
+                && !lobe[b]
+                && (b - w..=b + w).all(|j| {
+                    valid[j] && (lobe[j] || dog[j].abs() < m || (j <= b && dog[j].abs() <= m))
+                })
+        })
+        .collect()
 }
 
 /// Steps 1-2 of the module doc: per-sector median offsets, then the sum and count of the

@@ -698,6 +698,15 @@ impl DecodConfig {
 
     /// Range checks that the types cannot express.
     pub fn validate(&self) -> Result<()> {
+        self.check_positive()?;
+        self.check_voxel_span()?;
+        self.check_ranges()?;
+        self.check_relations()?;
+        self.check_names()
+    }
+
+    /// Values that must be finite and above 0.
+    fn check_positive(&self) -> Result<()> {
         let positive = [
             ("submap.interval_s", self.submap.interval_s),
             ("submap.voxel_m", self.submap.voxel_m),
@@ -744,6 +753,11 @@ impl DecodConfig {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// The range window must fit the packed voxel indices.
+    fn check_voxel_span(&self) -> Result<()> {
         // Voxel indices pack into 21 bits each (`submap::VOXEL_INDEX_LIMIT`).
         let span = self.submap.max_range_m / self.submap.voxel_m;
         if span >= crate::submap::VOXEL_INDEX_LIMIT as f64 {
@@ -757,6 +771,11 @@ impl DecodConfig {
                 ),
             ));
         }
+        Ok(())
+    }
+
+    /// Values with an allowed range (extraction and matching sections).
+    fn check_ranges(&self) -> Result<()> {
         // Extraction sections (issue 2).
         for (name, ok) in [
             ("contour.max_fit_points", self.contour.max_fit_points >= 3),
@@ -808,6 +827,11 @@ impl DecodConfig {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// Values that must agree with each other.
+    fn check_relations(&self) -> Result<()> {
         let gap = self.submap.odometry_gap_periods;
         if !(gap.is_finite() && (gap == 0.0 || gap > 1.0)) {
             return Err(DecodError::config(
@@ -847,6 +871,11 @@ impl DecodConfig {
                 "patch larger than the descriptor grid",
             ));
         }
+        Ok(())
+    }
+
+    /// Named choices.
+    fn check_names(&self) -> Result<()> {
         for (name, value, allowed) in [
             (
                 "contour.model",

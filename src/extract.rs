@@ -7,9 +7,9 @@ use std::fmt;
 use rayon::prelude::*;
 
 use crate::axis::{estimate_axis, refine_axis, transverse_basis};
-use crate::boundary::{ChartPoint, detect_boundaries};
+use crate::boundary::{BoundaryPeak, ChartPoint, detect_boundaries};
 use crate::config::DecodConfig;
-use crate::contour::fit_contour;
+use crate::contour::{ContourFit, fit_contour};
 use crate::descriptor::{bottom_mask, build_descriptor, column_samples};
 use crate::landmark::Landmark;
 use crate::submap::Submap;
@@ -176,48 +176,91 @@ pub struct ExtractionOutcome {
 /// 7. one descriptor per boundary, origin `o` = contour centre at the peak.
 pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcome {
     let mut out = ExtractionOutcome::default();
-    let stamp = submap.anchor_stamp;
-    let reject = |out: &mut ExtractionOutcome, reason| {
+    if let Err(reason) = extract_into(submap, cfg, &mut out) {
         out.rejections.push(Rejection {
-            submap_stamp: stamp,
+            submap_stamp: submap.anchor_stamp,
             reason,
-        })
-    };
+        });
+    }
+    out
+}
+
+/// The steps of [`extract_landmarks`], filling `out` as far as they get; the reason the
+/// submap stopped short of its descriptors, if it did.
+fn extract_into(
+    submap: &Submap,
+    cfg: &DecodConfig,
+    out: &mut ExtractionOutcome,
+) -> Result<(), RejectionReason> {
     let points = &submap.points_in_anchor;
     out.diagnostics.point_count = points.len();
-    if points.len() < cfg.submap.min_points.max(3) {
-        let reason = RejectionReason::TooFewPoints {
+    let min = cfg.submap.min_points.max(3);
+    if points.len() < min {
+        return Err(RejectionReason::TooFewPoints {
             count: points.len(),
-            min: cfg.submap.min_points.max(3),
-        };
-        reject(&mut out, reason);
-        return out;
+            min,
+        });
     }
     // 2. Axis.
-    let axis = match estimate_axis(points, submap.forward_in_anchor) {
-        Ok(a) => a,
-        Err(e) => {
-            reject(&mut out, RejectionReason::Degenerate(e.to_string()));
-            return out;
-        }
-    };
+    let axis = estimate_axis(points, submap.forward_in_anchor)
+        .map_err(|e| RejectionReason::Degenerate(e.to_string()))?;
     out.diagnostics.axis = axis.axis;
     out.diagnostics.centroid = axis.centroid;
     out.diagnostics.elongation = axis.elongation;
     if axis.elongation.is_nan() || axis.elongation < cfg.axis.min_elongation {
-        let reason = RejectionReason::NotElongated {
+        return Err(RejectionReason::NotElongated {
             ratio: axis.elongation,
             min: cfg.axis.min_elongation,
-        };
-        reject(&mut out, reason);
-        return out;
+        });
     }
-    // 3-4. Basis (Eq. 1), projection on the transverse plane and contour fit on an evenly
-    // strided subset (`contour.max_fit_points`), then `axis.refine_iterations` Gauss-Newton
-    // steps on the axis from the contour residuals; all on the subset, so that the full
-    // cloud is projected and unrolled only once (step 5).
-    let c = axis.centroid;
-    let mut a = axis.axis;
+    // 3-4.
+    let frame = fit_frame(submap, cfg, axis.centroid, axis.axis)?;
+    out.diagnostics.axis = frame.a;
+    // 5.
+    let chart = unrolled_chart(points, &frame, cfg, &mut out.diagnostics)?;
+    // 6. Boundaries.
+    let detection = detect_boundaries(
+        &chart.points,
+        &frame.fit.contour,
+        cfg.descriptor.bottom_mask_deg,
+        &cfg.boundary,
+    )
+    .map_err(|e| RejectionReason::Degenerate(e.to_string()))?;
+    out.diagnostics.boundary_candidates = detection.candidates;
+    out.diagnostics.dog_sigma_m = detection.dog_sigma_m;
+    out.diagnostics.dog_threshold_m = detection.threshold_m;
+    if detection.peaks.is_empty() {
+        return Err(RejectionReason::NoBoundary {
+            threshold_m: detection.threshold_m,
+        });
+    }
+    // 7.
+    describe_boundaries(submap, cfg, &frame, &chart, &detection.peaks, out);
+    Ok(())
+}
+
+/// The submap's corridor frame: centroid `c`, axis `a`, basis `e1, e2` (Eq. 1) and the
+/// contour fitted in it.
+struct CorridorFrame {
+    c: [f64; 3],
+    a: [f64; 3],
+    e1: [f64; 3],
+    e2: [f64; 3],
+    fit: ContourFit,
+}
+
+/// Steps 3-4: basis (Eq. 1), projection on the transverse plane and contour fit on an evenly
+/// strided subset (`contour.max_fit_points`), then `axis.refine_iterations` Gauss-Newton
+/// steps on the axis from the contour residuals; all on the subset, so that the full cloud
+/// is projected and unrolled only once (step 5).
+fn fit_frame(
+    submap: &Submap,
+    cfg: &DecodConfig,
+    c: [f64; 3],
+    axis: [f64; 3],
+) -> Result<CorridorFrame, RejectionReason> {
+    let points = &submap.points_in_anchor;
+    let mut a = axis;
     let stride = points
         .len()
         .div_ceil(cfg.contour.max_fit_points.max(3))
@@ -226,22 +269,15 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
     let mut refine_left = cfg.axis.refine_iterations;
     // `auto` chooses the model on the first fit; refinements keep that model.
     let mut contour_cfg = cfg.contour.clone();
-    let (e1, e2, fit) = loop {
-        let Ok((e1, e2)) = transverse_basis(a, submap.gravity_in_anchor) else {
-            reject(&mut out, RejectionReason::GravityAlongAxis);
-            return out;
-        };
+    loop {
+        let (e1, e2) = transverse_basis(a, submap.gravity_in_anchor)
+            .map_err(|_| RejectionReason::GravityAlongAxis)?;
         let (uv, z) = project(&subset, c, a, e1, e2);
-        let fit = match fit_contour(&uv, &contour_cfg) {
-            Ok(f) => f,
-            Err(e) => {
-                reject(&mut out, RejectionReason::Degenerate(e.to_string()));
-                return out;
-            }
-        };
+        let fit = fit_contour(&uv, &contour_cfg)
+            .map_err(|e| RejectionReason::Degenerate(e.to_string()))?;
         contour_cfg.model = fit.contour.model.name().to_string();
         if refine_left == 0 {
-            break (e1, e2, fit);
+            return Ok(CorridorFrame { c, a, e1, e2, fit });
         }
         refine_left -= 1;
         let contour = &fit.contour;
@@ -262,14 +298,31 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
                 };
                 a = refined.map(|v| sign * v);
             }
-            None => break (e1, e2, fit),
+            None => return Ok(CorridorFrame { c, a, e1, e2, fit }),
         }
-    };
-    drop(subset);
-    out.diagnostics.axis = a;
-    let contour = &fit.contour;
-    // 5. Unroll every point once: (z, p, s); validate the contour on all of them
-    // (paper §IV-A.2: >= 90 % within 0.18 m).
+    }
+}
+
+/// The unrolled points bucketed by axial descriptor cell (counting sort, O(N)), so that
+/// each descriptor reads only the points within its +-half_length window.
+struct Chart {
+    points: Vec<ChartPoint>,
+    bucket_start: Vec<usize>,
+    z_lo: f64,
+    bucket_m: f64,
+}
+
+/// Step 5: every point unrolled once to `(z, p, s)`, cut to the corridor's axial span, and
+/// the contour validated on all of them (paper §IV-A.2: >= 90 % within 0.18 m); fills the
+/// contour diagnostics.
+fn unrolled_chart(
+    points: &[[f32; 3]],
+    frame: &CorridorFrame,
+    cfg: &DecodConfig,
+    diag: &mut SubmapDiagnostics,
+) -> Result<Chart, RejectionReason> {
+    let (c, a, e1, e2) = (frame.c, frame.a, frame.e1, frame.e2);
+    let contour = &frame.fit.contour;
     let chart: Vec<ChartPoint> = points
         .iter()
         .map(|p| {
@@ -285,8 +338,6 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         .collect();
     // A corridor end (portal, cap, junction) in range: keep the axial span that is corridor.
     let chart = corridor_span(chart, cfg);
-    // Bucket the chart by axial descriptor cell (counting sort, O(N)) so that each
-    // descriptor reads only the points within its +-half_length window.
     let (chart, bucket_start, z_lo, bucket_m) = bucket_by_z(
         chart,
         cfg.descriptor.half_length_m * 2.0 / cfg.descriptor.rows.max(1) as f64,
@@ -296,59 +347,47 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
         .filter(|q| q.s.abs() <= cfg.contour.inlier_distance_m)
         .count();
     let inlier_fraction = inliers as f64 / chart.len() as f64;
-    let diag = &mut out.diagnostics;
     diag.contour_model = contour.model.name().to_string();
     diag.contour_centre_e1e2 = contour.centre_uv;
     diag.contour_radius_m = contour.mean_radius_m;
     diag.contour_inlier_fraction = inlier_fraction;
-    diag.contour_median_abs_offset_m = fit.median_abs_offset_m;
+    diag.contour_median_abs_offset_m = frame.fit.median_abs_offset_m;
     diag.contour_p90_abs_offset_m = p90_abs_offset(&chart);
     if inlier_fraction < cfg.contour.min_inlier_fraction {
-        let reason = RejectionReason::ContourMisfit {
+        return Err(RejectionReason::ContourMisfit {
             inlier_fraction,
             min: cfg.contour.min_inlier_fraction,
-        };
-        reject(&mut out, reason);
-        return out;
+        });
     }
-    // 6. Boundaries.
-    let detection = match detect_boundaries(
-        &chart,
-        contour,
-        cfg.descriptor.bottom_mask_deg,
-        &cfg.boundary,
-    ) {
-        Ok(d) => d,
-        Err(e) => {
-            reject(&mut out, RejectionReason::Degenerate(e.to_string()));
-            return out;
-        }
-    };
-    out.diagnostics.boundary_candidates = detection.candidates;
-    out.diagnostics.dog_sigma_m = detection.dog_sigma_m;
-    out.diagnostics.dog_threshold_m = detection.threshold_m;
-    if detection.peaks.is_empty() {
-        let reason = RejectionReason::NoBoundary {
-            threshold_m: detection.threshold_m,
-        };
-        reject(&mut out, reason);
-        return out;
-    }
-    // 7. Descriptors.
+    Ok(Chart {
+        points: chart,
+        bucket_start,
+        z_lo,
+        bucket_m,
+    })
+}
+
+/// Step 7: one descriptor per boundary, origin `o` = contour centre at the peak; a boundary
+/// whose descriptor observes no cell is a rejection.
+fn describe_boundaries(
+    submap: &Submap,
+    cfg: &DecodConfig,
+    frame: &CorridorFrame,
+    chart: &Chart,
+    peaks: &[BoundaryPeak],
+    out: &mut ExtractionOutcome,
+) {
+    let (c, a, e1, e2) = (frame.c, frame.a, frame.e1, frame.e2);
+    let contour = &frame.fit.contour;
     let columns = column_samples(contour, cfg.descriptor.cols);
     let masked = bottom_mask(&columns, cfg.descriptor.bottom_mask_deg);
     let [cu, cv] = contour.centre_uv;
-    for peak in &detection.peaks {
-        let first = (((peak.z_m - cfg.descriptor.half_length_m - z_lo) / bucket_m)
-            .floor()
-            .max(0.0) as usize)
-            .min(bucket_start.len() - 1);
-        let last = (((peak.z_m + cfg.descriptor.half_length_m - z_lo) / bucket_m)
-            .floor()
-            .max(0.0) as usize
-            + 1)
-        .min(bucket_start.len() - 1);
-        let window = &chart[bucket_start[first]..bucket_start[last]];
+    let starts = &chart.bucket_start;
+    let bucket = |z: f64| ((z - chart.z_lo) / chart.bucket_m).floor().max(0.0) as usize;
+    for peak in peaks {
+        let first = bucket(peak.z_m - cfg.descriptor.half_length_m).min(starts.len() - 1);
+        let last = (bucket(peak.z_m + cfg.descriptor.half_length_m) + 1).min(starts.len() - 1);
+        let window = &chart.points[starts[first]..starts[last]];
         let descriptor = build_descriptor(
             window,
             peak.z_m,
@@ -358,12 +397,15 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
             &cfg.descriptor,
         );
         if descriptor.observed_count() == 0 {
-            reject(&mut out, RejectionReason::EmptyDescriptor { z_m: peak.z_m });
+            out.rejections.push(Rejection {
+                submap_stamp: submap.anchor_stamp,
+                reason: RejectionReason::EmptyDescriptor { z_m: peak.z_m },
+            });
             continue;
         }
         let origin = std::array::from_fn(|i| c[i] + cu * e1[i] + cv * e2[i] + peak.z_m * a[i]);
         out.landmarks.push(Landmark {
-            submap_stamp: stamp,
+            submap_stamp: submap.anchor_stamp,
             scan_stamps: submap.scan_stamps.clone(),
             origin_in_submap: origin,
             axis_in_submap: a,
@@ -375,7 +417,6 @@ pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcom
             descriptor,
         });
     }
-    out
 }
 
 /// Points sampled for `contour_p90_abs_offset_m`; enough for a percentile to 0.3 %.

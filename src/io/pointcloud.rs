@@ -179,14 +179,9 @@ fn read_coord(point: &[u8], c: Coord, big: bool) -> f32 {
     }
 }
 
-/// Decodes the data bytes of a cloud whose fixed part is `meta`. Errors on missing x/y/z and
-/// on steps inconsistent with the fields or the data length.
-pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
-    let (x, y, z) = (
-        find_coord(&meta, "x")?,
-        find_coord(&meta, "y")?,
-        find_coord(&meta, "z")?,
-    );
+/// The bytes of one row of points (`width * point_step`), after checking that the steps
+/// agree with each other and that `data_len` bytes hold every row.
+fn checked_layout(meta: &CloudMeta, data_len: usize) -> WireResult<usize> {
     let step = meta.point_step as usize;
     let width = meta.width as usize;
     let height = meta.height as usize;
@@ -207,14 +202,30 @@ pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
             .and_then(|v| v.checked_add(row_bytes))
             .ok_or_else(|| "height * row_step overflows".to_string())?
     };
-    if data.len() < needed {
+    if data_len < needed {
         return Err(format!(
             "inconsistent steps: {height} rows x row_step {} needs {needed} data bytes, message \
              has {}",
-            meta.row_step,
-            data.len()
+            meta.row_step, data_len
         ));
     }
+    Ok(row_bytes)
+}
+
+/// Decodes the data bytes of a cloud whose fixed part is `meta`. Errors on missing x/y/z and
+/// on steps inconsistent with the fields or the data length.
+pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
+    let (x, y, z) = (
+        find_coord(&meta, "x")?,
+        find_coord(&meta, "y")?,
+        find_coord(&meta, "z")?,
+    );
+    let row_bytes = checked_layout(&meta, data.len())?;
+    let (step, width, height) = (
+        meta.point_step as usize,
+        meta.width as usize,
+        meta.height as usize,
+    );
     let big = meta.is_bigendian;
     let fast = !big
         && x.datatype == datatype::FLOAT32

@@ -166,38 +166,66 @@ pub fn row_z_m(d: &Descriptor, r: usize) -> f64 {
 
 /// Residual of the least-squares fit of Eq. 2 over observed cells (see the module docs).
 pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
-    let (rows, cols) = (d.rows, d.cols);
-    let k = rows + 2; // gamma per row, beta1, beta2
-    // Column means of y and of the regressors besides alpha (e_r, z n1(c), z n2(c)) over
-    // observed cells: alpha is eliminated by centring each column.
-    let mut col_n = vec![0usize; cols];
-    let mut col_y = vec![0.0; cols];
-    let mut col_g = vec![0.0; cols * k];
-    for r in 0..rows {
-        let z = row_z_m(d, r);
-        for c in 0..cols {
-            let i = d.index(r, c);
-            if d.observed[i] {
-                col_n[c] += 1;
-                col_y[c] += d.offsets_m[i];
-                let g = &mut col_g[c * k..(c + 1) * k];
-                g[r] += 1.0;
-                g[rows] += z * d.normal_e1[c];
-                g[rows + 1] += z * d.normal_e2[c];
+    let means = ColumnMeans::of(d);
+    let (m, b) = normal_equations(d, &means);
+    let theta = solve_gauged(m, &b, d.rows);
+    residual(d, &means, &theta)
+}
+
+/// Per column over its observed cells: the count, the mean offset, and the mean of the
+/// regressors besides alpha (`e_r`, `z n1(c)`, `z n2(c)`; `k = rows + 2` per column). Alpha
+/// is eliminated by centring each column.
+struct ColumnMeans {
+    n: Vec<usize>,
+    y: Vec<f64>,
+    g: Vec<f64>,
+    k: usize,
+}
+
+impl ColumnMeans {
+    fn of(d: &Descriptor) -> Self {
+        let (rows, cols) = (d.rows, d.cols);
+        let k = rows + 2; // gamma per row, beta1, beta2
+        let mut col_n = vec![0usize; cols];
+        let mut col_y = vec![0.0; cols];
+        let mut col_g = vec![0.0; cols * k];
+        for r in 0..rows {
+            let z = row_z_m(d, r);
+            for c in 0..cols {
+                let i = d.index(r, c);
+                if d.observed[i] {
+                    col_n[c] += 1;
+                    col_y[c] += d.offsets_m[i];
+                    let g = &mut col_g[c * k..(c + 1) * k];
+                    g[r] += 1.0;
+                    g[rows] += z * d.normal_e1[c];
+                    g[rows + 1] += z * d.normal_e2[c];
+                }
             }
         }
-    }
-    for c in 0..cols {
-        if col_n[c] > 0 {
-            let inv = 1.0 / col_n[c] as f64;
-            col_y[c] *= inv;
-            col_g[c * k..(c + 1) * k].iter_mut().for_each(|x| *x *= inv);
+        for c in 0..cols {
+            if col_n[c] > 0 {
+                let inv = 1.0 / col_n[c] as f64;
+                col_y[c] *= inv;
+                col_g[c * k..(c + 1) * k].iter_mut().for_each(|x| *x *= inv);
+            }
+        }
+        Self {
+            n: col_n,
+            y: col_y,
+            g: col_g,
+            k,
         }
     }
-    // Normal equations of the column-centred problem:
-    // sum_cells (g - gbar_c)(g - gbar_c)^T = sum_cells g g^T - sum_c n_c gbar_c gbar_c^T.
-    // The first sum is sparse (g = e_r + z n1 e_b1 + z n2 e_b2): per-row sums. The second is
-    // one GEMM, G^T G with the rows of G = sqrt(n_c) gbar_c (cols x k), likewise for b.
+}
+
+/// The normal equations `(m, b)` of the column-centred problem:
+/// `sum_cells (g - gbar_c)(g - gbar_c)^T = sum_cells g g^T - sum_c n_c gbar_c gbar_c^T`.
+/// The first sum is sparse (`g = e_r + z n1 e_b1 + z n2 e_b2`): per-row sums. The second is
+/// one GEMM, `G^T G` with the rows of `G = sqrt(n_c) gbar_c` (cols x k), likewise for `b`.
+fn normal_equations(d: &Descriptor, means: &ColumnMeans) -> (Mat<f64>, Mat<f64>) {
+    let (rows, cols, k) = (d.rows, d.cols, means.k);
+    let (col_n, col_y, col_g) = (&means.n, &means.y, &means.g);
     let (mut row_cnt, mut row_t1, mut row_t2, mut row_y) = (
         vec![0.0; rows],
         vec![0.0; rows],
@@ -263,8 +291,14 @@ pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
         -1.0,
         Par::Seq,
     );
-    // Gauge: sum gamma = 0 (u u^T on the gamma block); ridge for empty rows and for a
-    // degenerate tilt column (e.g. all rows but one unobserved).
+    (m, b)
+}
+
+/// `theta` (gamma per row, beta1, beta2) from the normal equations, with the gauge
+/// `sum gamma = 0` (`u u^T` on the gamma block) and a ridge for empty rows and for a
+/// degenerate tilt column (e.g. all rows but one unobserved); non-finite entries are 0.
+fn solve_gauged(mut m: Mat<f64>, b: &Mat<f64>, rows: usize) -> Vec<f64> {
+    let k = m.nrows();
     let trace: f64 = (0..k).map(|a| m[(a, a)]).sum::<f64>().max(1e-300);
     let ridge = 1e-10 * trace / k as f64;
     for a in 0..rows {
@@ -276,23 +310,27 @@ pub fn five_variable_residual(d: &Descriptor) -> Vec<f64> {
         m[(a, a)] += ridge;
     }
     let theta = match m.llt(Side::Lower) {
-        Ok(llt) => llt.solve(&b),
-        Err(_) => m.partial_piv_lu().solve(&b),
+        Ok(llt) => llt.solve(b),
+        Err(_) => m.partial_piv_lu().solve(b),
     };
-    let theta: Vec<f64> = (0..k).map(|a| theta[(a, 0)]).collect();
-    let theta: Vec<f64> = theta
-        .iter()
-        .map(|t| if t.is_finite() { *t } else { 0.0 })
-        .collect();
+    (0..k)
+        .map(|a| theta[(a, 0)])
+        .map(|t| if t.is_finite() { t } else { 0.0 })
+        .collect()
+}
+
+/// The observed offsets minus the fitted five-variable surface (0 where unobserved).
+fn residual(d: &Descriptor, means: &ColumnMeans, theta: &[f64]) -> Vec<f64> {
+    let (rows, cols, k) = (d.rows, d.cols, means.k);
     // alpha_c = column mean of y minus the column mean of the other terms.
     let alpha: Vec<f64> = (0..cols)
         .map(|c| {
-            let mean_other: f64 = col_g[c * k..(c + 1) * k]
+            let mean_other: f64 = means.g[c * k..(c + 1) * k]
                 .iter()
-                .zip(&theta)
+                .zip(theta)
                 .map(|(a, t)| a * t)
                 .sum();
-            col_y[c] - mean_other
+            means.y[c] - mean_other
         })
         .collect();
     let (b1, b2) = (theta[rows], theta[rows + 1]);

@@ -4,6 +4,7 @@ rosbag2/MCAP log + ``gt.tum`` + ``odom.tum`` + ``joints.json`` on disk)."""
 from __future__ import annotations
 
 import contextlib
+import math
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -367,6 +368,83 @@ class SimResult:
         return self.time_scans_s / max(self.n_scans, 1)
 
 
+def _clear_outputs(paths: tuple[Path, ...], overwrite: bool) -> None:
+    """Remove the outputs of an earlier simulation, or refuse (``FileExistsError``)."""
+    for existing in paths:
+        if existing.exists():
+            if not overwrite:
+                raise FileExistsError(
+                    f"{existing} exists (pass overwrite=True / --force to replace)"
+                )
+            if existing.is_dir():
+                shutil.rmtree(existing)
+            else:
+                existing.unlink()
+
+
+@dataclass
+class _Stream:
+    """What writing the log produced: the odometry as written (the drift model's, or
+    KISS-ICP's), point and IMU counts, and the seconds spent on scans and odometry."""
+
+    odom_poses: NDArray[np.float64]
+    n_points: int = 0
+    n_imu: int = 0
+    t_scans: float = 0.0
+    t_odom: float = 0.0
+
+
+def _write_stream(
+    sim: Simulation, w: _Fanout, kiss: KissOdometry | None, progress: bool, label: str
+) -> _Stream:
+    """Every scan, odometry message and IMU sample of ``sim`` in time order into ``w``."""
+    stream = _Stream(odom_poses=sim.drift.odom_poses.copy())
+    imu_ns = T0_NS + np.round(sim.imu.t_s * 1e9).astype(np.int64)
+    lin, ang = sim.odom_twist()
+    var_g = sim.imu_spec.gyro_noise_radps**2
+    var_a = sim.imu_spec.accel_noise_mps2**2
+
+    def imu_until(stamp: float) -> None:
+        while stream.n_imu < imu_ns.size and imu_ns[stream.n_imu] <= stamp:
+            i = stream.n_imu
+            w.imu(int(imu_ns[i]), sim.imu.gyro_radps[i], sim.imu.accel_mps2[i], var_g, var_a)
+            stream.n_imu += 1
+
+    bar = Progress(label, sim.n_scans, enabled=progress)
+    for k in range(sim.n_scans):
+        stamp = int(sim.stamps_ns[k])
+        imu_until(stamp)
+        t0 = time.perf_counter()
+        pts, inten = sim.scan(k)
+        stream.t_scans += time.perf_counter() - t0
+        stream.n_points += pts.shape[0]
+        w.points(stamp, pts, inten)
+        if kiss is not None:
+            t1 = time.perf_counter()
+            stream.odom_poses[k] = kiss.step(pts)
+            stream.t_odom += time.perf_counter() - t1
+            lin[k], ang[k] = _backward_twist(stream.odom_poses, k)
+        w.odom(stamp, stream.odom_poses[k], lin[k], ang[k])
+        bar.advance()
+    imu_until(math.inf)
+    bar.close()
+    return stream
+
+
+def _kiss_summary(
+    kiss: KissOdometry, odom: NDArray[np.float64], gt: NDArray[np.float64], endpoint: float
+) -> dict[str, Any]:
+    """``joints.json`` ``odometry`` for a KISS-ICP run: its settings and its errors."""
+    err = odom[:, :3, 3] - gt[:, :3, 3]
+    return {
+        **kiss.settings,
+        "endpoint_error_m": endpoint,
+        "endpoint_axial_m": float(err[-1, 0]),
+        "max_axial_m": float(np.max(np.abs(err[:, 0]))),
+        "max_lateral_m": float(np.max(np.hypot(err[:, 1], err[:, 2]))),
+    }
+
+
 def simulate(
     scene: str,
     out_dir: Path | str,
@@ -412,16 +490,7 @@ def simulate(
     out = Path(out_dir)
     log_dir = out / LOG_DIRNAME
     bag_path = out / ROS1_BAG_NAME
-    for existing in (log_dir, bag_path):
-        if existing.exists():
-            if not overwrite:
-                raise FileExistsError(
-                    f"{existing} exists (pass overwrite=True / --force to replace)"
-                )
-            if existing.is_dir():
-                shutil.rmtree(existing)
-            else:
-                existing.unlink()
+    _clear_outputs((log_dir, bag_path), overwrite)
     out.mkdir(parents=True, exist_ok=True)
     sim = Simulation(
         scene,
@@ -438,73 +507,23 @@ def simulate(
         world_seed=world_seed,
     )
     kiss = KissOdometry(scene, sim.gt_poses[0]) if odometry == "kiss-icp" else None
-    odom_poses = sim.drift.odom_poses.copy()
     t_setup = time.perf_counter() - t_start
-    imu_ns = T0_NS + np.round(sim.imu.t_s * 1e9).astype(np.int64)
-    lin, ang = sim.odom_twist()
-    var_g = sim.imu_spec.gyro_noise_radps**2
-    var_a = sim.imu_spec.accel_noise_mps2**2
-    t_scans = 0.0
-    t_odom = 0.0
-    n_points = 0
-    i_imu = 0
-    bar = Progress(f"simulate {scene}", sim.n_scans, enabled=progress)
     with contextlib.ExitStack() as stack:
         writers: list[LogWriter | Ros1Writer] = [
             stack.enter_context(LogWriter(log_dir, livox=livox))
         ]
         if ros1:
             writers.append(stack.enter_context(Ros1Writer(bag_path, livox=livox)))
-        w = _Fanout(writers)
-        for k in range(sim.n_scans):
-            stamp = int(sim.stamps_ns[k])
-            while i_imu < imu_ns.size and imu_ns[i_imu] <= stamp:
-                w.imu(
-                    int(imu_ns[i_imu]),
-                    sim.imu.gyro_radps[i_imu],
-                    sim.imu.accel_mps2[i_imu],
-                    var_g,
-                    var_a,
-                )
-                i_imu += 1
-            t0 = time.perf_counter()
-            pts, inten = sim.scan(k)
-            t_scans += time.perf_counter() - t0
-            n_points += pts.shape[0]
-            w.points(stamp, pts, inten)
-            if kiss is not None:
-                t1 = time.perf_counter()
-                odom_poses[k] = kiss.step(pts)
-                t_odom += time.perf_counter() - t1
-                lin[k], ang[k] = _backward_twist(odom_poses, k)
-            w.odom(stamp, odom_poses[k], lin[k], ang[k])
-            bar.advance()
-        while i_imu < imu_ns.size:
-            w.imu(
-                int(imu_ns[i_imu]),
-                sim.imu.gyro_radps[i_imu],
-                sim.imu.accel_mps2[i_imu],
-                var_g,
-                var_a,
-            )
-            i_imu += 1
-    bar.close()
+        stream = _write_stream(sim, _Fanout(writers), kiss, progress, f"simulate {scene}")
     gt_tum = out / "gt.tum"
     odom_tum = out / "odom.tum"
     joints = out / "joints.json"
     write_tum(gt_tum, sim.stamps_ns, sim.gt_poses)
-    write_tum(odom_tum, sim.stamps_ns, odom_poses)
-    endpoint = float(np.linalg.norm(odom_poses[-1, :3, 3] - sim.gt_poses[-1, :3, 3]))
+    write_tum(odom_tum, sim.stamps_ns, stream.odom_poses)
+    endpoint = float(np.linalg.norm(stream.odom_poses[-1, :3, 3] - sim.gt_poses[-1, :3, 3]))
     meta = sim.metadata()
     if kiss is not None:
-        err = odom_poses[:, :3, 3] - sim.gt_poses[:, :3, 3]
-        meta["odometry"] = {
-            **kiss.settings,
-            "endpoint_error_m": endpoint,
-            "endpoint_axial_m": float(err[-1, 0]),
-            "max_axial_m": float(np.max(np.abs(err[:, 0]))),
-            "max_lateral_m": float(np.max(np.hypot(err[:, 1], err[:, 2]))),
-        }
+        meta["odometry"] = _kiss_summary(kiss, stream.odom_poses, sim.gt_poses, endpoint)
     meta["files"] = {"log": LOG_DIRNAME, "gt": gt_tum.name, "odom": odom_tum.name}
     if ros1:
         meta["files"]["ros1_bag"] = ROS1_BAG_NAME
@@ -524,15 +543,15 @@ def simulate(
         scene=scene,
         sensor=sim.sensor.name,
         n_scans=sim.n_scans,
-        n_points=n_points,
-        n_imu=int(imu_ns.size),
+        n_points=stream.n_points,
+        n_imu=stream.n_imu,
         n_joints=int(sim.scene.joints_x_m.size),
         duration_s=float(sim.t_s[-1]),
         endpoint_error_m=endpoint,
         log_size_bytes=size,
         time_total_s=total,
         time_setup_s=t_setup,
-        time_scans_s=t_scans,
-        time_write_s=total - t_setup - t_scans - t_odom,
-        time_odometry_s=t_odom,
+        time_scans_s=stream.t_scans,
+        time_write_s=total - t_setup - stream.t_scans - stream.t_odom,
+        time_odometry_s=stream.t_odom,
     )
