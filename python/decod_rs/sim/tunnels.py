@@ -10,6 +10,7 @@ Every builder starts from its module-level parameter dict (``SHIELD_PARAMS``,
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -139,6 +140,105 @@ def _floor_texture(
     return Grid2D(x_min, du, -half, du, values, wrap_v=False)
 
 
+def _shield_rings(
+    rng: np.random.Generator,
+    p: dict[str, Any],
+    joints: F64,
+    rot: F64,
+    edges_rel: F64,
+    distinct: float,
+    identical: bool,
+) -> SegmentTable:
+    """Per-ring angular table: segment radial offsets (lipping) and longitudinal seams."""
+    radius = p["radius_m"]
+    n_ring = joints.size + 1
+    n_t = 2048
+    th = theta_grid(n_t)
+    ring_tab = np.zeros((n_ring, n_t), dtype=np.float32)
+    ident_seed = int(rng.integers(2**62))
+    for i in range(n_ring):
+        # Aliased tunnel: every ring draws the same variations.
+        g = np.random.default_rng(ident_seed) if identical else rng
+        offs = g.normal(0.0, p["lipping_m"] * distinct, len(edges_rel))
+        offs -= offs.mean()
+        rel = (th - rot[i]) % (2.0 * np.pi)
+        seg_idx = np.searchsorted(edges_rel, rel, side="right") - 1
+        row = offs[seg_idx]
+        for e in edges_rel:
+            d_arc = radius * wrap_angle(th - rot[i] - e)
+            depth = p["long_seam_depth_m"] * (1.0 + 0.15 * distinct * g.standard_normal())
+            row = row + depth * flat_bump(d_arc / (0.5 * p["long_seam_width_m"]), 0.3)
+        ring_tab[i] = row
+    return SegmentTable(joints, ring_tab)
+
+
+def _shield_seams(
+    rng: np.random.Generator, p: dict[str, Any], joints: F64, distinct: float, identical: bool
+) -> PatchSet:
+    """Ring seams: circumferential grooves with varying depth/width, spalled edges."""
+    half = 0.04
+    u = np.linspace(-half, half, 33)
+    th_s = theta_grid(1024)
+
+    def one_seam(g: np.random.Generator) -> np.ndarray:
+        return _groove_table(
+            g,
+            u,
+            th_s,
+            p["seam_depth_m"],
+            p["seam_width_m"],
+            distinct,
+            p["seam_depth_var_m"],
+            p["seam_width_var_m"],
+            p["seam_centre_var_m"],
+            p["spalls_per_seam"],
+            tuple(p["spall_depth_m"]),
+        )
+
+    if identical:
+        s0 = one_seam(rng)
+        seam_tables = np.stack([s0 for _ in joints])
+    else:
+        seam_tables = np.stack([one_seam(rng) for _ in joints])
+    return PatchSet(joints, half, seam_tables.astype(np.float32))
+
+
+def _shield_pockets(
+    rng: np.random.Generator,
+    p: dict[str, Any],
+    joints: F64,
+    seams_ext: F64,
+    rot: F64,
+    distinct: float,
+    identical: bool,
+) -> Callable[[F64, F64], F64]:
+    """Bolt pockets: recesses in a band beside each ring seam, rotating with the ring."""
+    radius = p["radius_m"]
+    n_ring = joints.size + 1
+    n_p = int(p["pockets_per_side"])
+    pocket_depth = p["pocket_depth_m"] + (
+        np.zeros((n_ring, 2, n_p))
+        if identical
+        else rng.normal(0.0, p["pocket_depth_var_m"] * distinct, (n_ring, 2, n_p))
+    )
+    pitch = 2.0 * np.pi / n_p
+
+    def pockets(x: F64, theta: F64) -> F64:
+        i = np.searchsorted(joints, x)
+        out = np.zeros_like(x)
+        for side, dist in ((0, x - seams_ext[i]), (1, seams_ext[i + 1] - x)):
+            band = flat_bump((dist - p["pocket_offset_m"]) / (0.5 * p["pocket_axial_m"]), 0.7)
+            phi = (theta - rot[i] - (0.5 * pitch if side == 0 else 0.0)) % (2.0 * np.pi)
+            k = np.round(phi / pitch)
+            arc = radius * (phi - k * pitch)
+            circ = flat_bump(arc / (0.5 * p["pocket_circ_m"]), 0.7)
+            depth = pocket_depth[i, side, k.astype(np.int64) % n_p]
+            out = out + depth * band * circ
+        return out
+
+    return pockets
+
+
 def build_shield(
     rng: np.random.Generator,
     x_max: float,
@@ -164,74 +264,9 @@ def build_shield(
     # Rotate so the key sits at the crown for ring 0.
     rot = rot + np.pi / 2 - np.deg2rad(p["segment_angles_deg"][0]) / 2
 
-    # Per-ring angular table: segment radial offsets (lipping) and longitudinal seams.
-    n_t = 2048
-    th = theta_grid(n_t)
-    ring_tab = np.zeros((n_ring, n_t), dtype=np.float32)
-    ident_seed = int(rng.integers(2**62))
-    for i in range(n_ring):
-        # Aliased tunnel: every ring draws the same variations.
-        g = np.random.default_rng(ident_seed) if identical else rng
-        offs = g.normal(0.0, p["lipping_m"] * distinct, len(edges_rel))
-        offs -= offs.mean()
-        rel = (th - rot[i]) % (2.0 * np.pi)
-        seg_idx = np.searchsorted(edges_rel, rel, side="right") - 1
-        row = offs[seg_idx]
-        for e in edges_rel:
-            d_arc = radius * wrap_angle(th - rot[i] - e)
-            depth = p["long_seam_depth_m"] * (1.0 + 0.15 * distinct * g.standard_normal())
-            row = row + depth * flat_bump(d_arc / (0.5 * p["long_seam_width_m"]), 0.3)
-        ring_tab[i] = row
-    rings = SegmentTable(joints, ring_tab)
-
-    # Ring seams: circumferential grooves with varying depth/width, spalled edges.
-    half = 0.04
-    u = np.linspace(-half, half, 33)
-    th_s = theta_grid(1024)
-
-    def one_seam(g: np.random.Generator) -> np.ndarray:
-        return _groove_table(
-            g,
-            u,
-            th_s,
-            p["seam_depth_m"],
-            p["seam_width_m"],
-            distinct,
-            p["seam_depth_var_m"],
-            p["seam_width_var_m"],
-            p["seam_centre_var_m"],
-            p["spalls_per_seam"],
-            tuple(p["spall_depth_m"]),
-        )
-
-    if identical:
-        s0 = one_seam(rng)
-        seam_tables = np.stack([s0 for _ in joints])
-    else:
-        seam_tables = np.stack([one_seam(rng) for _ in joints])
-    seams = PatchSet(joints, half, seam_tables.astype(np.float32))
-
-    # Bolt pockets: recesses in a band beside each ring seam, rotating with the ring.
-    n_p = int(p["pockets_per_side"])
-    pocket_depth = p["pocket_depth_m"] + (
-        np.zeros((n_ring, 2, n_p))
-        if identical
-        else rng.normal(0.0, p["pocket_depth_var_m"] * distinct, (n_ring, 2, n_p))
-    )
-    pitch = 2.0 * np.pi / n_p
-
-    def pockets(x: F64, theta: F64) -> F64:
-        i = np.searchsorted(joints, x)
-        out = np.zeros_like(x)
-        for side, dist in ((0, x - seams_ext[i]), (1, seams_ext[i + 1] - x)):
-            band = flat_bump((dist - p["pocket_offset_m"]) / (0.5 * p["pocket_axial_m"]), 0.7)
-            phi = (theta - rot[i] - (0.5 * pitch if side == 0 else 0.0)) % (2.0 * np.pi)
-            k = np.round(phi / pitch)
-            arc = radius * (phi - k * pitch)
-            circ = flat_bump(arc / (0.5 * p["pocket_circ_m"]), 0.7)
-            depth = pocket_depth[i, side, k.astype(np.int64) % n_p]
-            out = out + depth * band * circ
-        return out
+    rings = _shield_rings(rng, p, joints, rot, edges_rel, distinct, identical)
+    seams = _shield_seams(rng, p, joints, distinct, identical)
+    pockets = _shield_pockets(rng, p, joints, seams_ext, rot, distinct, identical)
 
     rough = _roughness(
         rng,
