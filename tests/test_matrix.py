@@ -20,6 +20,7 @@ from decod_rs.bench.matrix import (
     full_ring_distance_m,
     joint_coverage,
     loop_summary,
+    registry_chainage_errors,
     ring_distance_for,
     tier_cells,
     zero_loop_reason,
@@ -112,6 +113,41 @@ def test_joint_coverage_counts_joints_seen_twice() -> None:
     closed = np.array([3.1, 7.0])  # a loop at 7 does not count: 7 was not seen twice
     assert joint_coverage(joints, out_x, ret_x, closed) == (2, 1, 0.5)
     assert joint_coverage(joints, out_x, np.zeros(0), closed) == (0, 0, None)
+
+
+def test_registry_error_is_each_joints_nearest_row(tmp_path) -> None:
+    # Ground truth: the body moves along +x from x = 0; landmarks sit at the origin of the body
+    # frame of their stamp, so a landmark's true position is its stamp (1 m/s).
+    poses = np.stack([np.eye(4), np.eye(4)])
+    poses[1, 0, 3] = 100.0
+    gt = (np.array([0.0, 100.0]), poses)
+    meta = {
+        "joints_x_m": [2.5, 10.0, 20.0],
+        "trajectory": {"x_start_m": 0.5},
+        "axis": {"origin_m": [0.0, 0.0, 0.0], "direction": [1.0, 0.0, 0.0]},
+    }
+
+    class Landmarks:
+        # joint 0: the 2.5 m joint (chainage 2.0 true, 2.03 in the file: 1.5 %); joint 1: a
+        # chip 0.25 m from the 10 m joint; joint 2: that joint (0.1 %); joint 3: a row at
+        # 15 m, no joint near; joint 4: the 20 m joint but not loop-confirmed.
+        joint_id = np.array([0, 0, 1, 2, 2, 3, 4])
+        stamp = np.array([2.5, 2.5, 10.25, 10.0, 10.0, 15.0, 20.0])
+        origin = np.zeros((7, 3))
+
+    (tmp_path / "joints.csv").write_text(
+        "joint_id,chainage_m,loop_confirmed\n0,2.03,1\n1,9.75,1\n2,9.5095,1\n3,14.5,1\n4,30.0,0\n",
+        encoding="utf-8",
+    )
+    errors, elsewhere = registry_chainage_errors(tmp_path, meta, gt, Landmarks())
+    assert errors == pytest.approx([1.5, 0.1])
+    assert elsewhere == 2  # the chip beside the 10 m joint and the row at 15 m
+    # Without the joint's own row, the chip is that joint's row, and its error counts.
+    (tmp_path / "joints.csv").write_text(
+        "joint_id,chainage_m,loop_confirmed\n1,9.75,1\n", encoding="utf-8"
+    )
+    errors, elsewhere = registry_chainage_errors(tmp_path, meta, gt, Landmarks())
+    assert errors == pytest.approx([100 * 0.25 / 9.5]) and elsewhere == 0
 
 
 def test_zero_loop_reason_names_the_first_missing_piece() -> None:

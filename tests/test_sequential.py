@@ -13,6 +13,7 @@ import pytest
 
 from decod_rs._core import Landmark
 from decod_rs.evaluate import evaluate_run
+from decod_rs.joints import landmark_chainage
 from decod_rs.pipeline import run_log
 from decod_rs.sequential import RIB_POLARITY, boundary_polarity
 from decod_rs.sim import simulate
@@ -139,3 +140,39 @@ def test_boundary_polarity_tells_ribs_from_grooves() -> None:
         polarity = boundary_polarity([_view(centre, rng) for _ in range(20)])
         assert polarity is not None and polarity > RIB_POLARITY, (centre, polarity)
     assert boundary_polarity([]) is None
+
+
+def _yaw(theta: float, x: float, y: float, z: float = 0.0) -> np.ndarray:
+    pose = np.eye(4)
+    c, s = np.cos(theta), np.sin(theta)
+    pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:3, 3] = [x, y, z]
+    return pose
+
+
+def test_chainage_follows_each_landmarks_axis_through_stops_and_turns() -> None:
+    # The robot stands 2 s at x = 0, drives 10 m along x at 0.5 m/s (10 Hz), creeps to a stop
+    # with 2 mm steps that wander 3 mm sideways, then turns on the spot (a turn return).
+    stand = [_yaw(0.0, 0.0, 0.0)] * 20
+    drive = [_yaw(0.0, 0.05 * k, 0.005 * np.sin(0.05 * k)) for k in range(1, 201)]
+    end = drive[-1][:3, 3]
+    creep = [_yaw(0.0, end[0] + 0.002 * k, end[1] + 0.003 * (-1) ** k) for k in range(1, 6)]
+    stop = creep[-1][:3, 3]
+    turn = [_yaw(np.pi * k / 30, stop[0], stop[1]) for k in range(1, 31)]
+    poses = np.stack(stand + drive + creep + turn)
+    to_stop = float(np.sum(np.linalg.norm(np.diff(poses[:225, :3, 3], axis=0), axis=1)))
+    stamps = 0.1 * np.arange(len(poses))
+    # Landmarks (anchor frame: the pose at their stamp): a ring 3 m ahead of the standing robot,
+    # its centre 1.5 m above the sensor; one seen at 5 m; a joint 2 m past the far end seen
+    # from the stopped robot, and the same joint seen from behind after half of the turn.
+    k_half = len(stand) + len(drive) + len(creep) + 15
+    seen_from = [0, len(stand) + 100, len(stand) + 200 + 4, k_half]
+    origins = np.array([[3.0, 0.0, 1.5], [0.2, 0.05, 1.5], [2.0, 0.0, 1.5], [0.0, -2.0, 1.5]])
+    axes = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    got = landmark_chainage(stamps[seen_from], origins, axes, stamps, poses)
+    assert got[0] == pytest.approx(3.0, abs=0.005)
+    assert got[1] == pytest.approx(5.25, abs=0.005)  # seen from x = 5.05
+    # Past the far end: 2 m beyond the path's length at the stop (the previous rule put
+    # both views of this joint within a few centimetres of the stop).
+    assert got[2] == pytest.approx(to_stop + 2.0, abs=0.005)
+    assert got[3] == pytest.approx(to_stop + 2.0, abs=0.005)

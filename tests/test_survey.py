@@ -85,6 +85,20 @@ def test_chainage_along_the_survey_path_extends_past_its_ends() -> None:
     np.testing.assert_allclose(chainage_along(path, points), [3.2, 12.0, 17.3, -1.5], atol=1e-9)
 
 
+def test_chainage_past_a_stop_runs_along_the_corridor_not_the_last_step() -> None:
+    # 10 m along x in 5 cm steps, then the robot creeps to a stop: its last steps are 2 mm
+    # forward and 3 mm sideways (odometry noise), which the previous rule extended.
+    x = np.arange(0.0, 10.001, 0.05)
+    path = np.c_[x, 0.01 * np.sin(x), np.zeros(x.size)]
+    creep = path[-1] + np.array([[0.002 * k, 0.003 * (-1) ** k, 0.0] for k in range(1, 6)])
+    path = np.vstack([path, creep])
+    total = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
+    # A joint 2 m past the stop, 0.3 m off the path; the first step of the path is clean.
+    got = chainage_along(path, np.array([[12.01, 0.3, 0.0], [-1.0, 0.0, 0.0]]))
+    assert got[0] == pytest.approx(total + 2.0, abs=0.01)
+    assert got[1] == pytest.approx(-1.0, abs=1e-3)
+
+
 def test_second_run_lands_in_the_survey_frame(runs: dict[str, Path]) -> None:
     report = json.loads((runs["again"] / "report.json").read_text())["survey"]
     assert report["placed_in_survey_frame"], report

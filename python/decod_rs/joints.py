@@ -34,7 +34,14 @@ JOINTS_COLUMNS = (
     "last_stamp",
 )
 
-__all__ = ["JOINTS_COLUMNS", "Joint", "joint_registry", "write_joints_csv"]
+__all__ = ["JOINTS_COLUMNS", "Joint", "joint_registry", "landmark_chainage", "write_joints_csv"]
+
+#: Path length (m) either side of a landmark's nearest path point over which the direction
+#: of travel is read, only to orient the landmark's axis: the path between consecutive scans
+#: is 0-15 cm long (none while the robot stands or turns) and its direction is then the
+#: odometry's noise, while over 2 x 0.5 m the lateral wobble of the simulated and real
+#: paths (1-2 cm) tilts it by about 1 deg.
+DIRECTION_SPAN_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -49,6 +56,47 @@ class Joint:
     loop_confirmed: bool
     first_stamp: float
     last_stamp: float
+
+
+def landmark_chainage(
+    stamps: FloatArray,
+    origins: FloatArray,
+    axes: FloatArray,
+    scan_stamps: FloatArray,
+    corrected: FloatArray,
+) -> FloatArray:
+    """Distance (m) from the start along the corrected outbound path to each landmark
+    (``stamps`` (N,), ``origins`` and ``axes`` (N, 3) in their anchor frames; ``corrected``
+    (M, 4, 4) the poses at ``scan_stamps``): the path length to the path point nearest the
+    landmark's world position, plus the landmark's offset from that point along its own
+    corridor axis, oriented with the direction of travel there (``DIRECTION_SPAN_M``). Not
+    snapped to a scan (scans are 4-15 cm apart at 0.4-1.5 m/s, 1-4 % of a joint's chainage
+    in the first metres). Beyond the far end or behind the start the offset runs on along
+    the axis, so a joint seen past the turnaround gets a chainage past the path's length.
+    The direction of the path's last step stood in for the axis before: where the robot
+    slows to a stop that step is millimetres of odometry noise, and joints 0.5-2.5 m past
+    the turnaround of the simulated tunnels came out 0.7-1.7 m short."""
+    positions = corrected[:, :3, 3]
+    far = int(np.argmax(np.linalg.norm(positions - positions[0], axis=1)))
+    path = positions[: far + 1]
+    arclength = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    out = np.empty(len(stamps))
+    for k, stamp in enumerate(stamps):
+        pose = corrected[int(np.argmin(np.abs(scan_stamps - stamp)))]
+        world = pose[:3, :3] @ origins[k] + pose[:3, 3]
+        axis = pose[:3, :3] @ axes[k]
+        i = int(np.argmin(np.linalg.norm(path - world, axis=1)))
+        lo, hi = np.searchsorted(
+            arclength, [arclength[i] - DIRECTION_SPAN_M, arclength[i] + DIRECTION_SPAN_M]
+        )
+        travel = path[min(int(hi), far)] - path[max(int(lo) - 1, 0)]
+        norm = float(np.linalg.norm(axis))
+        along = 0.0
+        if norm > 1e-9 and float(np.linalg.norm(travel)) > 1e-9:
+            axis = axis / norm if float(axis @ travel) >= 0.0 else -axis / norm
+            along = float((world - path[i]) @ axis)
+        out[k] = arclength[i] + along
+    return out
 
 
 def _key(stamp: float, origin: FloatArray) -> tuple[float, tuple[float, ...]]:

@@ -34,7 +34,7 @@ from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
 from decod_rs.ingest import StreamHealth, ingest_section, warn_once
 from decod_rs.io import find_imu_topic
-from decod_rs.joints import Joint, joint_registry, write_joints_csv
+from decod_rs.joints import Joint, joint_registry, landmark_chainage, write_joints_csv
 from decod_rs.matching import LandmarkDatabase, PairMemo
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.progress import Progress
@@ -264,33 +264,6 @@ def _constraints(
         for r, ok in zip(results, keep, strict=True)
         if ok
     ]
-
-
-def _chainage(
-    landmarks: list[Landmark],
-    anchor_stamps: FloatArray,
-    scan_stamps: FloatArray,
-    corrected: FloatArray,
-) -> FloatArray:
-    """Distance from the start along the corrected outbound path to each landmark: the
-    landmark's world position is projected on the path up to its farthest point, along the
-    path's direction at the nearest scan (not snapped to that scan: scans are 4-15 cm apart
-    at 0.4-1.5 m/s, 1-4 % of a joint's chainage in the first metres). A boundary seen beyond
-    the far end or behind the start gets a chainage beyond the path's length or below zero."""
-    positions = corrected[:, :3, 3]
-    far = int(np.argmax(np.linalg.norm(positions - positions[0], axis=1)))
-    path = positions[: far + 1]
-    arclength = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
-    out = np.empty(len(landmarks))
-    for k, lm in enumerate(landmarks):
-        pose = corrected[int(np.argmin(np.abs(scan_stamps - lm.submap_stamp)))]
-        world = pose[:3, :3] @ lm.origin + pose[:3, 3]
-        i = int(np.argmin(np.linalg.norm(path - world, axis=1)))
-        chord = path[min(i + 1, far)] - path[max(i - 1, 0)]
-        length = float(np.linalg.norm(chord))
-        along = float((world - path[i]) @ chord) / length if length > 1e-9 else 0.0
-        out[k] = arclength[i] + along  # beyond either end: extended along the path's direction
-    return out
 
 
 @dataclass
@@ -598,7 +571,13 @@ def _write(
     if stage is not None and stage.placed:
         chainage = stage.chainage(lms, scan_stamps, correction.poses)
     else:
-        chainage = _chainage(lms, anchor_stamps, scan_stamps, correction.poses)
+        chainage = landmark_chainage(
+            np.array([lm.submap_stamp for lm in lms]),
+            np.array([lm.origin for lm in lms]).reshape(-1, 3),
+            np.array([lm.axis for lm in lms]).reshape(-1, 3),
+            scan_stamps,
+            correction.poses,
+        )
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
     joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split)
     survey_ids = None if stage is None else stage.survey_ids(joint_of)

@@ -42,6 +42,7 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
+from decod_rs.joints import DIRECTION_SPAN_M
 from decod_rs.landmark_factor import landmark_factor
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.selection import (
@@ -161,11 +162,12 @@ def load_survey(run_dir: str | Path) -> Survey:
 
 def chainage_along(path: FloatArray, points: FloatArray) -> FloatArray:
     """Arclength (m) along the polyline ``path`` (P, 3) at the projection of each of
-    ``points`` (N, 3) onto its nearest segment. Beyond either end the first or last segment
-    is extended, as the run's own registry does (``pipeline._chainage``): a joint seen past
-    the far end gets a chainage past the path's length, not the length itself (a
-    re-inspection's view of the survey's last joint, 2.3 m beyond the turnaround, was put
-    at the turnaround)."""
+    ``points`` (N, 3) onto its nearest segment. Beyond either end the path runs on along its
+    direction over the last (first) ``2 * DIRECTION_SPAN_M`` of it, as the run's own
+    registry does (``joints.landmark_chainage``): a joint seen past the far end gets a
+    chainage past the path's length, not the length itself (a re-inspection's view of the
+    survey's last joint, 2.3 m beyond the turnaround, was put at the turnaround), and not
+    along the last scan step, which is odometry noise where the robot slows to a stop."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if path.shape[0] < 2:
         return np.zeros(pts.shape[0])
@@ -173,6 +175,8 @@ def chainage_along(path: FloatArray, points: FloatArray) -> FloatArray:
     seg = b - a
     length = np.linalg.norm(seg, axis=1)
     start = np.concatenate([[0.0], np.cumsum(length)])[:-1]
+    total = float(start[-1] + length[-1])
+    ends = _end_directions(path, np.concatenate([start, [total]]))
     last = seg.shape[0] - 1
     out = np.empty(pts.shape[0])
     for k, x in enumerate(pts):
@@ -180,11 +184,24 @@ def chainage_along(path: FloatArray, points: FloatArray) -> FloatArray:
         t = np.clip(raw, 0.0, 1.0)
         dist = np.linalg.norm(a + t[:, None] * seg - x, axis=1)
         s = int(np.argmin(dist))
-        along = raw[s]
-        if not ((s == 0 and along < 0.0) or (s == last and along > 1.0)):
-            along = t[s]
-        out[k] = start[s] + along * length[s]
+        if s == 0 and raw[s] < 0.0:
+            out[k] = float((x - path[0]) @ ends[0])
+        elif s == last and raw[s] > 1.0:
+            out[k] = total + float((x - path[-1]) @ ends[1])
+        else:
+            out[k] = start[s] + t[s] * length[s]
     return out
+
+
+def _end_directions(path: FloatArray, arclength: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Unit directions of travel over the first and the last ``2 * DIRECTION_SPAN_M`` of
+    ``path`` (zero vectors where the path has no length)."""
+    span = 2.0 * DIRECTION_SPAN_M
+    first = path[min(int(np.searchsorted(arclength, span)), path.shape[0] - 1)] - path[0]
+    back = max(int(np.searchsorted(arclength, arclength[-1] - span)) - 1, 0)
+    last = path[-1] - path[back]
+    unit = [d / n if (n := float(np.linalg.norm(d))) > 1e-9 else np.zeros(3) for d in (first, last)]
+    return unit[0], unit[1]
 
 
 @dataclass
