@@ -272,10 +272,26 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
             )
         )
     fixed, est = rescale_odometry(t, odom, anchors, a_odom, seq, 0.01, 40.0)
-    # One pair is not evidence enough to rescale a pass.
-    same, few = rescale_odometry(t, odom, anchors, a_odom, seq[:1], 0.01, 40.0)
+    # One pair measures the outbound scale to sqrt(2) 1 cm / 0.45 m = 3 %: with a loop tying
+    # the return to it, the outbound is rescaled, the return (unmeasured) is not.
+    one, est_one = rescale_odometry(t, odom, anchors, a_odom, seq[:1], 0.01, 40.0)
+    assert [p["rescaled"] for p in est_one.passes] == [True, False]
+    assert est_one.passes[0]["measured_scale"] == pytest.approx(1 / 0.9, rel=1e-6)
+    # (the smoothness prior spreads the one window's scale over the pass to within 0.5 %)
+    out = t <= 40.0
+    assert np.abs(one[out, 0, 3] - x[out]).max() < 0.05 * np.abs(odom[out, 0, 3] - x[out]).max()
+    # Without a loop, rescaling the outbound alone would move the unmeasured return, whose
+    # own error (-20 %) had partly cancelled the outbound's: the odometry stands.
+    same, untied = rescale_odometry(t, odom, anchors, a_odom, seq[:1], 0.01, 40.0, tied=False)
     np.testing.assert_allclose(same, odom)
-    assert [p["rescaled"] for p in few.passes] == [False, False]
+    assert [p["rescaled"] for p in untied.passes] == [False, False]
+    # The return measured alone moves nothing after it: rescaled with or without a loop.
+    back = [c for c in seq if anchors[c.db_index] > 40.0][:1]
+    _, est_back = rescale_odometry(t, odom, anchors, a_odom, back, 0.01, 40.0, tied=False)
+    assert [p["rescaled"] for p in est_back.passes] == [False, True]
+    # A pair whose baseline measures less than 5 % is not used.
+    wide = rescale_odometry(t, odom, anchors, a_odom, seq[:1], 0.03, 40.0)[1]
+    assert [p["rescaled"] for p in wide.passes] == [False, False]
     before = np.abs(odom[:, 0, 3] - truth[:, 0, 3]).max()
     after = np.abs(fixed[:, 0, 3] - truth[:, 0, 3]).max()
     assert before > 1.9  # -2 m at the far end, +2 m at the end

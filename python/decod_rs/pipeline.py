@@ -436,8 +436,16 @@ def _optimise(
     start, scale = scans[1], None
     if seq is not None and seq.constraints:
         anchor_odom = interpolate_poses(*scans, anchor_stamps)
+        tied = any(c.kind == "loop" for c in constraints)
         start, scale = rescale_odometry(
-            scans[0], scans[1], anchor_stamps, anchor_odom, seq.constraints, seq.sigma_m, split
+            scans[0],
+            scans[1],
+            anchor_stamps,
+            anchor_odom,
+            seq.constraints,
+            seq.sigma_m,
+            split,
+            tied,
         )
     rescaled = scale is not None and any(p["rescaled"] for p in scale.passes)
     if not rescaled and not any(c.kind == "loop" for c in constraints):
