@@ -434,9 +434,9 @@ def _optimise(
     scan odometry the graph started from."""
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     start, scale = scans[1], None
+    tied = any(c.kind == "loop" for c in constraints)
     if seq is not None and seq.constraints:
         anchor_odom = interpolate_poses(*scans, anchor_stamps)
-        tied = any(c.kind == "loop" for c in constraints)
         start, scale = rescale_odometry(
             scans[0],
             scans[1],
@@ -448,7 +448,7 @@ def _optimise(
             tied,
         )
     rescaled = scale is not None and any(p["rescaled"] for p in scale.passes)
-    if not rescaled and not any(c.kind == "loop" for c in constraints):
+    if not rescaled and not tied:
         # Nothing measured the degenerate axis: the odometry stands (paper Alg. 1, "keep
         # X* = X_odom if L is empty"); a few sequential factors alone only add noise.
         constraints = []
