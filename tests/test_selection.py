@@ -234,12 +234,12 @@ def test_auto_report_is_strict_json_when_a_distance_was_never_sampled() -> None:
     assert cfg.submap.max_range_m == pytest.approx(grazing + 2 * 0.24 + 0.3, rel=1e-3)
 
 
-def test_tracked_boundaries_recover_each_pass_scale() -> None:
+def _out_and_back_tracks() -> tuple[Any, Any, Any, Any, Any, list[Any]]:
+    """A 20 m out-and-back at 0.5 m/s whose odometry reports 90 % of the outbound distance
+    and 80 % on the way back; boundaries every 2.5 m are seen from the two anchors before
+    them: stamps, true and odometry poses, anchor stamps and odometry, sequential pairs."""
     from decod_rs.graph import LoopConstraint
-    from decod_rs.odometry_scale import rescale_odometry
 
-    # A 20 m out-and-back at 0.5 m/s; the odometry reports 90 % of the outbound distance and
-    # 80 % on the way back. Boundaries every 2.5 m are seen from the two anchors before them.
     t = np.arange(0.0, 80.0, 0.1)
     x = np.where(t <= 40.0, 0.5 * t, 40.0 - 0.5 * t)
     scale = np.where(t <= 40.0, 0.9, 0.8)
@@ -250,7 +250,6 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
         p[:, 0, 3] = xs
         return p
 
-    truth, odom = poses(x), poses(odo_x)
     anchors = t[::10]  # one every second
     a_odom = poses(np.interp(anchors, t, odo_x))
     a_true = np.interp(anchors, t, x)
@@ -271,6 +270,14 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
                 sigma_m=0.01,
             )
         )
+    return t, poses(x), poses(odo_x), anchors, a_odom, seq
+
+
+def test_tracked_boundaries_recover_each_pass_scale() -> None:
+    from decod_rs.odometry_scale import rescale_odometry
+
+    t, truth, odom, anchors, a_odom, seq = _out_and_back_tracks()
+    x = truth[:, 0, 3]
     fixed, est = rescale_odometry(t, odom, anchors, a_odom, seq, 0.01, 40.0)
     # One pair measures the outbound scale to sqrt(2) 1 cm / 0.45 m = 3 %: with a loop tying
     # the return to it, the outbound is rescaled, the return (unmeasured) is not.
@@ -297,3 +304,42 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
     assert before > 1.9  # -2 m at the far end, +2 m at the end
     assert after < 0.05 * before, (after, est.passes)
     assert [p["mean_scale"] for p in est.passes] == pytest.approx([1 / 0.9, 1 / 0.8], rel=0.01)
+
+
+def test_the_less_well_measured_pass_gets_the_larger_odometry_sigmas() -> None:
+    from decod_rs.odometry_scale import (
+        UNMEASURED_SIGMA_FACTOR,
+        odometry_sigma_factors,
+        rescale_odometry,
+    )
+
+    t, _, odom, anchors, a_odom, seq = _out_and_back_tracks()
+    outbound = [c for c in seq if anchors[c.db_index] < 40.0]
+    back = [c for c in seq if anchors[c.db_index] > 40.0]
+    out = t <= 40.0
+
+    def factors(pairs: list[Any]) -> tuple[np.ndarray, list[float]]:
+        est = rescale_odometry(t, odom, anchors, a_odom, pairs, 0.01, 40.0)[1]
+        sigmas = [float(p["measured_scale_sigma"]) for p in est.passes]
+        return odometry_sigma_factors(t, est, 40.0), sigmas
+
+    # Both passes measured, the return by fewer pairs: its sigmas grow by the ratio of the
+    # scale errors, the outbound's stay.
+    f, sig = factors(outbound + back[:6])
+    assert 1.0 < sig[1] / sig[0] < UNMEASURED_SIGMA_FACTOR
+    np.testing.assert_allclose(f[out], 1.0)
+    np.testing.assert_allclose(f[~out], sig[1] / sig[0])
+    # The other way round, the outbound is the less well known.
+    f, sig = factors(outbound[:6] + back)
+    np.testing.assert_allclose(f[~out], 1.0)
+    np.testing.assert_allclose(f[out], sig[0] / sig[1])
+    # One pair against the outbound's forty: capped (the ratio is 7.1).
+    f, sig = factors(outbound + back[:1])
+    assert sig[1] / sig[0] > UNMEASURED_SIGMA_FACTOR
+    np.testing.assert_allclose(f[~out], UNMEASURED_SIGMA_FACTOR)
+    # A pass left at the odometry's scale counts as unmeasured; neither measured: all 1.
+    np.testing.assert_allclose(factors(outbound)[0][~out], UNMEASURED_SIGMA_FACTOR)
+    np.testing.assert_allclose(factors([])[0], 1.0)
+    # Without a split there is one pass and nothing to weigh.
+    est = rescale_odometry(t, odom, anchors, a_odom, seq, 0.01, None)[1]
+    np.testing.assert_allclose(odometry_sigma_factors(t, est, None), 1.0)
