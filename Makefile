@@ -22,10 +22,13 @@ fmt:
 	$(VENV)/bin/ruff format python tests
 	$(VENV)/bin/ruff check --fix python tests
 
+# Clippy in the release profile: the build scripts, proc macros and C libraries (SQLite, zstd,
+# lz4) of `make setup`'s release build are reused instead of rebuilt for the dev profile (the
+# code has no cfg(debug_assertions)): 7.0 -> 2.1 min on a fresh two-core machine.
 lint: setup
 	cargo fmt --all -- --check
-	cargo clippy --all-targets -- -D warnings
-	cargo clippy --all-targets --features python -- -D warnings
+	cargo clippy --release --all-targets -- -D warnings
+	cargo clippy --release --all-targets --features python -- -D warnings
 	$(VENV)/bin/ruff check python tests
 	$(VENV)/bin/ruff format --check python tests
 	$(VENV)/bin/mypy
@@ -34,8 +37,9 @@ lint: setup
 rust-test:
 	cargo test --release
 
+# One test module per worker (its shared logs are module fixtures); the slowest tests named.
 py-test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n logical --dist loadfile --durations=10
 
 test: lint rust-test py-test
 
