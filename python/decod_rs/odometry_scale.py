@@ -74,11 +74,11 @@ MAX_SCALE_SIGMA = 0.05
 #: matrix's uneven profile) against the measured pass's 1-2 %, so the loops should move it,
 #: not meet it halfway. When both were rescaled, the pass measured less well gets the ratio
 #: of the two scale errors, up to this factor: the loops then share the disagreement left
-#: after rescaling in proportion to what is known of each pass (one pe coupler pair measures
-#: a pass to 2 %, a dozen shield rings to 0.3 %). Full matrix (m63 -> m70): outbound far end
-#: within 1 % in 88 -> 91 of 98 rows, position RMSE -80 % where the odometry drifted >= 1 m
-#: in 67 -> 69 of 75 (pe forward uneven turn 0.36 -> 0.14 m, symmetric reverse 0.28 -> 0.08
-#: m), no wrong loop.
+#: after rescaling in proportion to what is known of each pass (one or two pe coupler pairs
+#: measure a pass to 2-5 %, a hundred shield ring pairs to 0.2 %). Full matrix (m63 -> m70):
+#: outbound far end within 1 % in 88 -> 91 of 98 rows, position RMSE -80 % where the
+#: odometry drifted >= 1 m in 67 -> 69 of 75 (pe forward uneven turn 0.36 -> 0.14 m,
+#: symmetric reverse 0.28 -> 0.08 m), no wrong loop.
 UNMEASURED_SIGMA_FACTOR = 3.0
 
 __all__ = ["ScaleEstimate", "odometry_sigma_factors", "rescale_odometry"]
@@ -165,10 +165,10 @@ def odometry_sigma_factors(
     ]
     if split_stamp is None or len(errors) != 2 or not np.isfinite(min(errors)):
         return out
-    best, worst = sorted(errors)
+    k = int(np.argmax(errors))  # the pass measured less well (the outbound on a tie)
+    worst, best = errors[k], errors[1 - k]
     ratio = UNMEASURED_SIGMA_FACTOR if worst >= best * UNMEASURED_SIGMA_FACTOR else worst / best
-    worse = scan_stamps > split_stamp if errors[1] > errors[0] else scan_stamps <= split_stamp
-    out[worse] = ratio
+    out[scan_stamps > split_stamp if k == 1 else scan_stamps <= split_stamp] = ratio
     return out
 
 
