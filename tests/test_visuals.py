@@ -349,3 +349,27 @@ def test_consistency_names_the_point_or_submap_at_fault() -> None:
     # A submap index beyond the anchors: the point cannot be placed along the corridor.
     with pytest.raises(ValueError, match=r"submap\[\d+\]"):
         map_consistency(cloud, anchors[:5], path, 0.0165)
+
+
+def test_boundary_rings_are_circles_of_the_fitted_radius_about_the_axis() -> None:
+    from decod_rs.recording import RING_POINTS, _rings
+
+    rng = np.random.default_rng(7)
+    origins = rng.normal(0.0, 5.0, (6, 3))
+    axes = rng.normal(0.0, 1.0, (6, 3))
+    axes[0] = [0.0, 0.0, 2.0]  # along the helper's fallback direction, not unit length
+    radii = rng.uniform(0.2, 3.0, 6)
+    rings = _rings(origins, axes, radii)
+    assert rings.shape == (6, RING_POINTS + 1, 3)
+    offsets = rings - origins[:, None, :]
+    unit = axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    np.testing.assert_allclose(
+        np.linalg.norm(offsets, axis=2), radii[:, None] * np.ones((1, RING_POINTS + 1))
+    )
+    np.testing.assert_allclose(np.einsum("nkj,nj->nk", offsets, unit), 0.0, atol=1e-12)
+    np.testing.assert_allclose(rings[:, 0], rings[:, -1], atol=1e-12)  # closed
+    # The points go once round: consecutive points one step of 2 pi / RING_POINTS apart.
+    step = np.linalg.norm(np.diff(offsets, axis=1), axis=2)
+    np.testing.assert_allclose(
+        step, 2 * radii[:, None] * np.sin(np.pi / RING_POINTS) * np.ones((1, RING_POINTS))
+    )

@@ -160,15 +160,17 @@ def _set_time(rec: Any, stamp: float) -> None:
     rec.set_time(TIMELINE, timestamp=float(stamp))
 
 
-def _ring(origin: FloatArray, axis: FloatArray, radius: float) -> FloatArray:
-    """(RING_POINTS + 1, 3) closed circle of ``radius`` about ``origin``, normal ``axis``."""
-    a = axis / max(float(np.linalg.norm(axis)), 1e-12)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+def _rings(origins: FloatArray, axes: FloatArray, radii: FloatArray) -> FloatArray:
+    """(n, RING_POINTS + 1, 3) closed circles of ``radii`` (n,) about ``origins`` (n, 3),
+    normal to ``axes`` (n, 3), all at once (one call per submap cost 0.2 ms a ring)."""
+    a = axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-12)
+    helper = np.where((np.abs(a[:, 2]) < 0.9)[:, None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
     u = np.cross(a, helper)
-    u /= np.linalg.norm(u)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
     v = np.cross(a, u)
     t = np.linspace(0.0, 2 * np.pi, RING_POINTS + 1)
-    return origin + radius * (np.outer(np.cos(t), u) + np.outer(np.sin(t), v))
+    circle = np.cos(t)[None, :, None] * u[:, None, :] + np.sin(t)[None, :, None] * v[:, None, :]
+    return np.asarray(origins[:, None, :] + radii[:, None, None] * circle)
 
 
 def _log_anchors(rr: Any, rec: Any, run: RecordingInput, poses: dict[str, FloatArray]) -> None:
@@ -210,23 +212,23 @@ def _log_submaps(rr: Any, rec: Any, run: RecordingInput) -> int:
             rec.log(f"{base}/cloud", rr.Points3D(cloud[::stride], colors=colours[passes[k]]))
         lms = by_stamp.get(float(stamp), [])
         if lms:
-            rings = [_ring(np.asarray(lm.origin), np.asarray(lm.axis), lm.radius_m) for lm in lms]
-            labels = [f"boundary r={lm.radius_m:.3f} m" for lm in lms]
-            rec.log(f"{base}/boundaries", rr.LineStrips3D(rings, labels=labels))
+            origins = np.array([lm.origin for lm in lms], dtype=np.float64)
+            axes = np.array([lm.axis for lm in lms], dtype=np.float64)
+            radii = np.array([lm.radius_m for lm in lms], dtype=np.float64)
+            labels = [f"boundary r={r:.3f} m" for r in radii]
             rec.log(
-                f"{base}/axes",
-                rr.Arrows3D(
-                    origins=[lm.origin for lm in lms],
-                    vectors=[np.asarray(lm.axis) * lm.radius_m for lm in lms],
-                ),
+                f"{base}/boundaries",
+                rr.LineStrips3D(list(_rings(origins, axes, radii)), labels=labels),
             )
+            rec.log(f"{base}/axes", rr.Arrows3D(origins=origins, vectors=axes * radii[:, None]))
     return int(run.anchor_stamps.size)
 
 
-def _world_point(run: RecordingInput, stamp: float, local: FloatArray) -> FloatArray:
-    """A point of a submap's anchor frame (submap at ``stamp``) in the corrected world."""
-    pose = anchor_poses(np.array([stamp]), run.scan_stamps, run.corrected)[0]
-    return np.asarray(pose[:3, :3] @ np.asarray(local, dtype=np.float64) + pose[:3, 3])
+def _world_points(run: RecordingInput, stamps: FloatArray, local: FloatArray) -> FloatArray:
+    """Points (n, 3) of submaps' anchor frames (submaps at ``stamps`` (n,)) in the corrected
+    world."""
+    poses = anchor_poses(stamps, run.scan_stamps, run.corrected)
+    return np.asarray(np.einsum("nij,nj->ni", poses[:, :3, :3], local) + poses[:, :3, 3])
 
 
 def _verdict(r: QueryResult, ok: bool, reason: str) -> str:
@@ -254,6 +256,24 @@ def _log_queries(rr: Any, rec: Any, run: RecordingInput) -> tuple[int, int]:
         [],
         [],
     )
+    found = [i for i, r in enumerate(run.results) if r.candidate_index is not None]
+    ends = {
+        i: (a, b)
+        for i, a, b in zip(
+            found,
+            _world_points(
+                run,
+                np.array([run.results[i].query_stamp for i in found], dtype=np.float64),
+                np.array([run.results[i].query_origin for i in found], dtype=np.float64),
+            ),
+            _world_points(
+                run,
+                np.array([run.results[i].candidate_stamp for i in found], dtype=np.float64),
+                np.array([run.results[i].candidate_origin for i in found], dtype=np.float64),
+            ),
+            strict=True,
+        )
+    }
     pairs = 0
     for stamp, idx in sorted(groups.items()):
         strips = 0
@@ -264,9 +284,7 @@ def _log_queries(rr: Any, rec: Any, run: RecordingInput) -> tuple[int, int]:
             texts[2].append("INFO" if ok else "WARN")
             if r.candidate_index is None:
                 continue
-            a = _world_point(run, r.query_stamp, r.query_origin)
-            b = _world_point(run, r.candidate_stamp, r.candidate_origin)
-            lines[2].append(np.stack([a, b]))
+            lines[2].append(np.stack(ends[i]))
             lines[3].append(int(_packed(np.array([ACCEPTED_RGB if ok else REJECTED_RGB]))[0]))
             lines[4].append(f"K={r.inliers} S={r.score:.2f} " + ("accepted" if ok else why))
             strips += 1
