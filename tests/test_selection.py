@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 from typing import Any
 
@@ -218,6 +219,23 @@ def test_auto_schedule_follows_the_speed() -> None:
         2.5 * fast["submap"]["interval_s"], rel=0.01
     )
     assert slow["matching"]["min_time_separation_s"] > fast["matching"]["min_time_separation_s"]
+
+
+def test_auto_schedule_fills_the_descriptor_of_a_sparse_sensor() -> None:
+    from decod_rs.autoscale import DESCRIPTOR_CELLS, DESCRIPTOR_FILL
+
+    # A sensor that puts few points into a descriptor-long stretch of wall per scan gets
+    # windows long enough that the points of a submap fill DESCRIPTOR_FILL of the cells
+    # (Poisson: n = -ln(1 - f) cells); a dense one keeps the visible-window schedule.
+    dense = derive(replace(_probe(0.2, 0.55, 0.4), descriptor_points=5000.0))
+    sparse = derive(replace(_probe(0.2, 0.55, 0.4), descriptor_points=250.0))
+    assert dense["submap"] == derive(_probe(0.2, 0.55, 0.4))["submap"]
+    needed = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS / 250.0
+    assert sparse["submap"]["scans_per_submap"] == round(needed)
+    assert sparse["submap"]["interval_s"] == pytest.approx(needed / 10.0, rel=1e-3)
+    assert sparse["submap"]["interval_s"] > dense["submap"]["interval_s"]
+    # Two views then share about half of their cells: twice the matcher's overlap floor.
+    assert DESCRIPTOR_FILL**2 == pytest.approx(2 * 0.25)
 
 
 def test_auto_report_is_strict_json_when_a_distance_was_never_sampled() -> None:

@@ -20,6 +20,12 @@ every spatial parameter from what it measured:
    points' offsets from the fitted contour. A lining or a pipe wall is one surface (relief
    2-30 mm in the simulated hume, pe and shield corridors); steel arches 0.2 m before the
    rock are two (relief 0.14-0.16 m for every sensor in the simulated horseshoe tunnel).
+5. **Points per descriptor.** Per probe scan, the scan's own wall points (not voxel-filtered,
+   bottom sector excluded) ahead of the sensor between ``z_near`` and the derived range,
+   scaled to one descriptor length: how many points one scan puts into a boundary's
+   descriptor, whose 16 x 256 cells are 3,413 outside the bottom mask. Measured on the
+   simulated corridors: 16 beams 420-500 in the 0.4 and 0.6 m pipes and 390 in the horseshoe
+   tunnel, the forward rosette 690-1,700, 64 beams 1,200-1,700.
 
 Derived (the tunnel preset, measured on the simulated 6 m shield tunnel, is the reference
 at ``r_ref = 3 m``; ``k = r / r_ref``; the pipe preset is the same rule at k = 0.1):
@@ -45,8 +51,17 @@ at ``r_ref = 3 m``; ``k = r / r_ref``; the pipe preset is the same rule at k = 0
   tunnel rings >= 1.2 m), which does not scale with the section;
 - schedule: an anchor every third of the visible window of travel, ``interval = (max_range -
   z_near) / (3 v)`` (each boundary is then seen from about three submaps per pass), with
-  every scan in between accumulated; the minimum time between loop partners
-  ``max(10 s, 2 max_range / v + interval)``: two views of the same pass never pair;
+  every scan in between accumulated, but at least the scans that put ``-ln(1 - f)`` = 1.23
+  points per cell into a descriptor (step 5; Poisson: a share ``f`` = ``DESCRIPTOR_FILL`` =
+  0.71 of the cells observed, so that two views of one boundary share half of them, twice
+  the matcher's ``min_overlap_fraction``). 16 beams in the pipes at 0.4 m/s cross the
+  visible window in 0.5-0.8 s (5-8 scans, 2,400-3,400 points for 3,413 cells); in the pe
+  pipe most queries were then rejected ``insufficient_overlap``. The rule asks 8-10 scans
+  there; elsewhere in the matrix it moved only the 0.3 m hume pipe's anchors (0.59 -> 0.61
+  s). Full matrix (m70 -> m71): pe runs with 16 beams covering under half the joints 7 ->
+  1, under uneven drift 0 -> 6-7 loops each (endpoint 3.2 m -> 0.00-1.05 m), the hume pipe
+  with 16 beams 861 -> 970 loops, no loop wrong anywhere; the minimum time between loop
+  partners ``max(10 s, 2 max_range / v + interval)``: two views of the same pass never pair;
 - the elongation gate is only a PCA-ambiguity guard (1.1): a forward-looking sensor sees
   a 5 m tunnel to 12 m, ratio 1.3, and the corridor test is the contour fit, not how far the
   sensor sees.
@@ -83,6 +98,12 @@ COVERAGE_SECTORS = 36
 COVERAGE_FRACTION = 0.9
 DRIFT_FRACTION = 0.15
 RELIEF_MARGIN = 1.5
+BOTTOM_MASK_DEG = 30.0
+#: Descriptor cells outside the bottom mask: 16 x 256 x (300 / 360).
+DESCRIPTOR_CELLS = 16 * 256 * (360.0 - 2 * BOTTOM_MASK_DEG) / 360.0
+#: Share of a descriptor's cells a submap should observe: two views of one boundary then
+#: share half of them (0.707^2), twice the matcher's ``min_overlap_fraction`` (0.25).
+DESCRIPTOR_FILL = math.sqrt(2 * 0.25)
 
 __all__ = ["CorridorProbe", "auto_config", "derive", "probe_corridor"]
 
@@ -90,8 +111,9 @@ __all__ = ["CorridorProbe", "auto_config", "derive", "probe_corridor"]
 @dataclass(frozen=True)
 class CorridorProbe:
     """What ``auto`` measured: contour radius (m), nearest fully sampled distance ahead of
-    the sensor (m), speed (m/s), scan rate (Hz), probe submaps used, and the wall's relief
-    about the contour (m, step 4)."""
+    the sensor (m), speed (m/s), scan rate (Hz), probe submaps used, the wall's relief
+    about the contour (m, step 4) and the wall points one scan puts into a descriptor-long
+    stretch of the range window (step 5)."""
 
     radius_m: float
     z_near_m: float
@@ -99,6 +121,7 @@ class CorridorProbe:
     scan_rate_hz: float
     probes: int
     relief_m: float = 0.0
+    descriptor_points: float = math.inf
 
 
 def _probe_config() -> str:
@@ -197,6 +220,39 @@ def _relief(windows: list[list[Any]], probe: CorridorProbe) -> float:
     return float(np.median(reliefs)) if reliefs else 0.0
 
 
+def _descriptor_points(windows: list[list[Any]], probe: CorridorProbe) -> float:
+    """Wall points one scan puts into a descriptor-long stretch of the range window (module
+    docs, step 5): per probe window, the corridor axis of the window's submap; per scan of it
+    (three), the scan's own points (not voxel-filtered) ahead of the sensor, bottom sector
+    excluded, between ``z_near`` and the derived ``max_range``, times one descriptor length
+    over that window; the median over the scans. ``inf`` when nothing could be measured (the
+    schedule then follows the visible window alone)."""
+    derived = derive(probe)
+    length = 2.0 * float(derived["descriptor"]["half_length_m"])
+    z_lo = probe.z_near_m if np.isfinite(probe.z_near_m) else 0.0
+    z_hi = float(derived["submap"]["max_range_m"])
+    if z_hi - z_lo < length:
+        z_lo = max(z_hi - length, 0.0)
+    cfg = _probe_config()
+    counts = []
+    for window in windows:
+        window_submap = _probe_submap(window, cfg)
+        axis = np.asarray(_core.extract_submap(window_submap, cfg).diagnostics.axis)
+        if float(np.asarray(window_submap.forward) @ axis) < 0:
+            axis = -axis  # ahead of the sensor (a window is a second: its heading is one)
+        gravity = np.asarray(window_submap.gravity)
+        e1 = gravity - axis * float(gravity @ axis)
+        e1 /= max(float(np.linalg.norm(e1)), 1e-12)
+        e2 = np.cross(axis, e1)
+        for scan in window[:: max(len(window) // 3, 1)]:
+            points = np.asarray(scan.points, dtype=np.float64)
+            z = points @ axis
+            ang = np.degrees(np.arctan2(points @ e2, points @ e1))
+            keep = (np.abs(ang) > BOTTOM_MASK_DEG) & (z >= z_lo) & (z < z_hi)
+            counts.append(np.count_nonzero(keep) * length / (z_hi - z_lo))
+    return float(np.median(counts)) if counts else math.inf
+
+
 def probe_corridor(
     log: Path,
     points_topic: str | None,
@@ -242,7 +298,8 @@ def probe_corridor(
         scan_rate_hz=rate,
         probes=len(radii),
     )
-    return replace(probe, relief_m=_relief(windows, probe)), imu
+    probe = replace(probe, relief_m=_relief(windows, probe))
+    return replace(probe, descriptor_points=_descriptor_points(windows, probe)), imu
 
 
 def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
@@ -254,7 +311,10 @@ def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
     z_near = probe.z_near_m if np.isfinite(probe.z_near_m) else grazing
     max_range = max(grazing, z_near + 2.0 * half + r)
     v = max(probe.speed_mps, 0.05)
-    interval = max((max_range - min(z_near, max_range / 2)) / (3.0 * v), 0.5)
+    # Enough scans that a boundary's descriptor is DESCRIPTOR_FILL observed (module docs).
+    points = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS
+    fill = points / max(probe.descriptor_points, 1.0) / probe.scan_rate_hz
+    interval = max((max_range - min(z_near, max_range / 2)) / (3.0 * v), fill, 0.5)
     scans = int(np.clip(round(interval * probe.scan_rate_hz), 5, 40))
     return {
         "submap": {
