@@ -146,12 +146,18 @@ def _speed(odometry: FloatArray) -> float:
     return float(np.median(moving)) if moving.size else 0.0
 
 
+def _section_axes(axis: FloatArray, gravity: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The cross-section's unit axes: ``e1`` towards gravity (angle 0 = down), ``e2`` =
+    ``axis x e1``."""
+    e1 = gravity - axis * float(gravity @ axis)
+    e1 /= max(float(np.linalg.norm(e1)), 1e-12)
+    return e1, np.cross(axis, e1)
+
+
 def _z_near(points: FloatArray, axis: FloatArray, centre: FloatArray, gravity: FloatArray) -> float:
     """Nearest distance ahead of the sensor (at the origin) at which COVERAGE_FRACTION of the
     non-bottom sectors hold wall points."""
-    e1 = gravity - axis * float(gravity @ axis)
-    e1 /= max(float(np.linalg.norm(e1)), 1e-12)
-    e2 = np.cross(axis, e1)
+    e1, e2 = _section_axes(axis, gravity)
     rel = points - centre
     z = points @ axis
     ang = np.degrees(np.arctan2(rel @ e2, rel @ e1))  # 0 deg = down (gravity)
@@ -241,9 +247,7 @@ def _descriptor_points(windows: list[list[Any]], probe: CorridorProbe) -> float:
         if float(np.asarray(window_submap.forward) @ axis) < 0:
             axis = -axis  # ahead of the sensor (a window is a second: its heading is one)
         gravity = np.asarray(window_submap.gravity)
-        e1 = gravity - axis * float(gravity @ axis)
-        e1 /= max(float(np.linalg.norm(e1)), 1e-12)
-        e2 = np.cross(axis, e1)
+        e1, e2 = _section_axes(axis, gravity)
         for scan in window[:: max(len(window) // 3, 1)]:
             points = np.asarray(scan.points, dtype=np.float64)
             z = points @ axis
@@ -278,10 +282,9 @@ def probe_corridor(
         windows.append(window)
         axis = np.asarray(d.axis)
         gravity = np.asarray(submap.gravity)
-        e1 = gravity - axis * float(gravity @ axis)
-        e1 /= max(float(np.linalg.norm(e1)), 1e-12)
+        e1, e2 = _section_axes(axis, gravity)
         cu, cv = d.contour_centre_e1e2
-        centre = np.asarray(d.centroid) + cu * e1 + cv * np.cross(axis, e1)
+        centre = np.asarray(d.centroid) + cu * e1 + cv * e2
         nears.append(_z_near(np.asarray(submap.points), axis, centre, gravity))
     if not radii:
         raise ValueError(
