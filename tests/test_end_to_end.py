@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from decod_rs.commands.run import print_unmeasured
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.run_files import LOOPS_COLUMNS
@@ -67,7 +68,9 @@ def test_hume_pipe_loops_are_precise_and_remove_the_drift(hume: Path, tmp_path: 
     assert (tmp_path / "run" / "trajectory.png").stat().st_size > 10_000
 
 
-def test_disabled_loops_return_the_odometry_unchanged(hume: Path, tmp_path: Path) -> None:
+def test_disabled_loops_return_the_odometry_unchanged(
+    hume: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     run_log(
         hume / "log",
         tmp_path,
@@ -84,6 +87,12 @@ def test_disabled_loops_return_the_odometry_unchanged(hume: Path, tmp_path: Path
     sim_stamps, sim_poses = read_tum(hume / "odom.tum")
     np.testing.assert_allclose(stamps, sim_stamps, atol=1e-6)
     np.testing.assert_allclose(poses, sim_poses, atol=1e-5)
+    # Nothing but the odometry placed it, and the report and the summary say so.
+    section = json.loads((tmp_path / "report.json").read_text())["unmeasured"]
+    assert section["share_of_pass"] == {"outbound": 1.0, "return": 1.0}
+    assert [s["where"] for s in section["stretches"]] == ["whole", "whole"]
+    print_unmeasured(tmp_path)
+    assert "odometry only  100 % of the outbound (all " in capsys.readouterr().out
 
 
 def test_aliased_pipe_yields_no_wrong_loop(tmp_path: Path) -> None:

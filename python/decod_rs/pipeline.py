@@ -62,6 +62,7 @@ from decod_rs.sequential import (
 from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
 from decod_rs.tracks import group_views, tracked_loops, views_per_landmark, world_origins
 from decod_rs.tum import interpolate_poses, write_tum
+from decod_rs.unmeasured import unmeasured, unmeasured_report
 
 FloatArray = NDArray[np.float64]
 
@@ -792,6 +793,11 @@ def finish_run(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
     report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild.report())
+    used = constraints if len(correction.graph.loop_weights) else []  # none: odometry stood
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    report["unmeasured"] = unmeasured_report(
+        *unmeasured(scans[0], correction.poses, anchors, used, summary.split_stamp)
+    )
     report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes

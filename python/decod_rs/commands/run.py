@@ -126,11 +126,25 @@ def run(args: argparse.Namespace) -> int:
         survey=args.survey,
     )
     print_summary(summary)
+    print_unmeasured(args.out)
     if args.survey is not None:
         print_survey(args.out)
     if args.map:
         print_map(args.out)
     return 0
+
+
+def print_unmeasured(out: Path) -> None:
+    """The stretches only the odometry places (``report.json`` ``unmeasured``), per pass."""
+    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["unmeasured"]
+    names = {"start": "first", "end": "last", "middle": "a gap of", "whole": "all"}
+    parts = []
+    for name, share in section["share_of_pass"].items():
+        spans = [s for s in section["stretches"] if s["pass_name"] == name]
+        if spans:
+            where = ", ".join(f"{names[s['where']]} {s['length_m']:.1f} m" for s in spans)
+            parts.append(f"{100 * share:.0f} % of the {name} ({where})")
+    print(f"odometry only  {'; '.join(parts) or 'none: factors reach every stretch'}")
 
 
 def print_map(out: Path) -> None:
