@@ -4,6 +4,8 @@ placed by construction, so the right answer is known."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -70,3 +72,18 @@ def test_short_gaps_are_not_stretches_and_nothing_measured_is_the_whole_pass() -
     report = unmeasured_report(stretches, shares)
     assert report["share_of_pass"] == {"outbound": 1.0, "return": 1.0}
     assert report["stretches"][1]["from_stamp"] == 20.1  # the return's first scan
+
+
+def test_the_trajectory_plot_shades_the_stretches(tmp_path: Path) -> None:
+    from matplotlib.image import imread
+
+    from decod_rs.plots import plot_trajectories
+
+    t, poses, _, _ = _out_and_back()
+    plain = plot_trajectories(tmp_path / "plain.png", t, poses, poses)
+    shaded = plot_trajectories(tmp_path / "shaded.png", t, poses, poses, unmeasured=[(30.0, 40.0)])
+    a, b = imread(plain), imread(shaded)
+    assert a.shape == b.shape
+    # The band is light grey behind the lines: pixels that were white are now grey.
+    grey = np.all(np.abs(b[..., :3] - 0.88) < 0.02, axis=-1) & np.all(a[..., :3] > 0.99, axis=-1)
+    assert grey.sum() > 0.01 * grey.size

@@ -62,7 +62,7 @@ from decod_rs.sequential import (
 from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
 from decod_rs.tracks import group_views, tracked_loops, views_per_landmark, world_origins
 from decod_rs.tum import interpolate_poses, write_tum
-from decod_rs.unmeasured import unmeasured, unmeasured_report
+from decod_rs.unmeasured import Stretch, unmeasured, unmeasured_report
 
 FloatArray = NDArray[np.float64]
 
@@ -781,11 +781,14 @@ def finish_run(
 
     t0 = time.perf_counter()
     joints, changes = _write(out, ex, matched, (scans, start), correction, constraints, cfg, stage)
+    used = constraints if len(correction.graph.loop_weights) else []  # none: odometry stood
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    odometry_only = unmeasured(scans[0], correction.poses, anchors, used, matched.split)
     timings["write"] = time.perf_counter() - t0
     if plots:
         t0 = time.perf_counter()
         kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
-        _plots(out, *scans, correction.poses, kept, ex.landmarks)
+        _plots(out, *scans, correction.poses, kept, ex.landmarks, odometry_only[0])
         timings["plots"] = time.perf_counter() - t0
 
     summary = _summary(out, ex, matched, scans, timings)
@@ -793,11 +796,7 @@ def finish_run(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
     report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild.report())
-    used = constraints if len(correction.graph.loop_weights) else []  # none: odometry stood
-    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
-    report["unmeasured"] = unmeasured_report(
-        *unmeasured(scans[0], correction.poses, anchors, used, summary.split_stamp)
-    )
+    report["unmeasured"] = unmeasured_report(*odometry_only)
     report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes
@@ -941,6 +940,7 @@ def _plots(
     corrected: FloatArray,
     results: list[QueryResult],
     landmarks: list[Landmark],
+    unmeasured: list[Stretch],
 ) -> None:
     from decod_rs.plots import plot_descriptor_pair, plot_trajectories
 
@@ -951,6 +951,7 @@ def _plots(
         odom,
         corrected,
         [(r.query_stamp, r.candidate_stamp) for r in accepted],
+        unmeasured=[(u.from_stamp, u.to_stamp) for u in unmeasured],
     )
     by_key = {(lm.submap_stamp, tuple(np.round(lm.origin, 6))): lm for lm in landmarks}
     # The strongest few accepted pairs: enough to inspect, not a file per loop.

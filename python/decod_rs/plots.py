@@ -65,10 +65,13 @@ def plot_trajectories(
     corrected: ArrayLike,
     loops: Sequence[tuple[float, float]] = (),
     ground_truth: tuple[ArrayLike, ArrayLike] | None = None,
+    unmeasured: Sequence[tuple[float, float]] = (),
 ) -> Path:
     """Trajectory before/after: ``stamps`` (N,), ``odometry`` and ``corrected`` (N, 4, 4)
     ``world_from_body``; ``loops``: accepted (query_stamp, db_stamp) pairs, drawn between
-    the two positions on each estimate; ``ground_truth``: optional (stamps, poses)."""
+    the two positions on each estimate; ``ground_truth``: optional (stamps, poses);
+    ``unmeasured``: (from, to) stamps that only the odometry places (``decod_rs.unmeasured``),
+    shaded on the along-the-corridor panel."""
     st = np.asarray(stamps, dtype=np.float64)
     series: dict[str, tuple[FloatArray, FloatArray]] = {}
     if ground_truth is not None:
@@ -108,6 +111,9 @@ def plot_trajectories(
     top.set_title("top view")
     top.axis("equal")
     top.legend(loc="best", fontsize=8)
+    for k, (a, b) in enumerate(unmeasured):
+        label = "odometry only (no loop or track)" if k == 0 else None
+        along.axvspan(a - t0, b - t0, color="0.88", zorder=0, label=label)
     along.set_xlabel("time [s]")
     along.set_ylabel("position along the main axis [m]")
     along.set_title("along the corridor")

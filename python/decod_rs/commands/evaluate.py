@@ -121,7 +121,16 @@ def evaluate_and_report(
                     corrected,
                     pairs,
                     ground_truth=read_tum(gt),
+                    unmeasured=_unmeasured(run_dir),
                 )
             )
     print("wrote " + ", ".join(str(p) for p in written))
     return result
+
+
+def _unmeasured(run_dir: Path) -> list[tuple[float, float]]:
+    """The run's stretches that only the odometry places (``report.json`` ``unmeasured``;
+    none for a run written before it existed)."""
+    report = json.loads((run_dir / "report.json").read_text(encoding="utf-8"))
+    section = report.get("unmeasured") or {}
+    return [(float(s["from_stamp"]), float(s["to_stamp"])) for s in section.get("stretches", [])]
