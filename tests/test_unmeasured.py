@@ -57,11 +57,12 @@ def test_the_stretches_no_factor_reaches_are_reported_with_their_length() -> Non
 
 def test_short_gaps_are_not_stretches_and_nothing_measured_is_the_whole_pass() -> None:
     t, poses, anchors, split = _out_and_back()
-    # Sequential pairs over every anchor of both passes but three intervals (1 m, not longer
-    # than MIN_STRETCH_M and 5 % of 20 m) and the pass ends (0.4-0.5 m): nothing to report.
-    pairs = [_pair(k, k + 1, "sequential") for k in range(39) if k not in (5, 19, 30)]
+    # Sequential pairs over every anchor of both passes but three intervals (1 m) and two
+    # adjacent ones (2 m: not longer than MIN_STRETCH_M), and the pass ends (0.4-0.5 m):
+    # nothing to report.
+    pairs = [_pair(k, k + 1, "sequential") for k in range(39) if k not in (5, 19, 30, 33, 34)]
     stretches, shares = unmeasured(t, poses, anchors, pairs, split)
-    assert MIN_STRETCH_M >= 1.0 and stretches == []
+    assert MIN_STRETCH_M == 2.0 and stretches == []
     assert shares == {"outbound": 0.0, "return": 0.0}
     # No factor (--no-loops, or the odometry stood): each pass is one stretch.
     stretches, shares = unmeasured(t, poses, anchors, [], split)

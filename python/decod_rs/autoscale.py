@@ -23,9 +23,9 @@ every spatial parameter from what it measured:
 5. **Points per descriptor.** Per probe scan, the scan's own wall points (not voxel-filtered,
    bottom sector excluded) ahead of the sensor between ``z_near`` and the derived range,
    scaled to one descriptor length: how many points one scan puts into a boundary's
-   descriptor, whose 16 x 256 cells are 3,413 outside the bottom mask. Measured on the
-   simulated corridors: 16 beams 420-500 in the 0.4 and 0.6 m pipes and 390 in the horseshoe
-   tunnel, the forward rosette 690-1,700, 64 beams 1,200-1,700.
+   descriptor, whose 16 x 256 cells are 3,413 outside the bottom mask. Measured over the
+   generalisation matrix (m71): 16 beams 420-500 in the 0.4 and 0.6 m pipes and 380-600 in
+   the horseshoe tunnel, the forward rosette 690-1,670, 64 beams 1,170-2,070.
 
 Derived (the tunnel preset, measured on the simulated 6 m shield tunnel, is the reference
 at ``r_ref = 3 m``; ``k = r / r_ref``; the pipe preset is the same rule at k = 0.1):

@@ -16,10 +16,9 @@ path between consecutive anchors (and from the pass's first scan to its first an
 from its last anchor to its last scan) is measured where a sequential pair of the pass spans
 it, or where it lies between the pass's first and last loop anchors (each pinned to the
 other pass). Each run of unmeasured intervals is a stretch, reported when it is longer than
-``MIN_STRETCH_M`` and than ``MIN_STRETCH_FRACTION`` of the pass's path (along the corrected
-trajectory): ``"start"``, ``"middle"``, ``"end"`` of its pass, or ``"whole"``. The
-outbound's start is the origin of the graph: its stretch drifts only as far as the
-odometry does over it.
+``MIN_STRETCH_M`` along the corrected trajectory: ``"start"``, ``"middle"``, ``"end"`` of its
+pass, or ``"whole"``. The outbound's start is the origin of the graph: its stretch drifts
+only as far as the odometry does over it.
 """
 
 from __future__ import annotations
@@ -35,13 +34,13 @@ from decod_rs.graph import LoopConstraint
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["MIN_STRETCH_FRACTION", "MIN_STRETCH_M", "Stretch", "unmeasured", "unmeasured_report"]
+__all__ = ["MIN_STRETCH_M", "Stretch", "unmeasured", "unmeasured_report"]
 
-#: A stretch no longer than this is not reported: anchors are 0.3-3 m apart in the simulated
-#: corridors, so a metre is a few anchors that no boundary was tracked across.
-MIN_STRETCH_M = 1.0
-#: Nor one no longer than this share of its pass's path.
-MIN_STRETCH_FRACTION = 0.05
+#: A stretch no longer than this is not reported, whatever the length of its pass (a 40 m
+#: gap in a kilometre of tunnel matters as much as in 40 m): the odometry of the matrix drifts
+#: by 3-15 %, 6-30 cm over 2 m, the scale of a joint's detection noise and of the sequential
+#: factors' spacing (anchors are 0.3-3.3 m apart in the simulated corridors).
+MIN_STRETCH_M = 2.0
 
 
 @dataclass(frozen=True)
@@ -88,12 +87,11 @@ def unmeasured(
         # j and j + 1, so anchor own[k] is point k + 1.
         points = np.concatenate([[t[0]], anchor_stamps[own], [t[-1]]])
         covered = _covered(own, constraints, points.size - 1)
-        floor = max(MIN_STRETCH_M, MIN_STRETCH_FRACTION * total)
         found = 0.0
         for lo, hi in _runs(~covered):
             a, b = float(points[lo]), float(points[hi])
             length = float(np.interp(b, t, path) - np.interp(a, t, path))
-            if length > floor:
+            if length > MIN_STRETCH_M:
                 where = _where(lo, hi, points.size - 1)
                 stretches.append(Stretch(name, where, a, b, length))
                 found += length
@@ -141,7 +139,6 @@ def unmeasured_report(stretches: list[Stretch], shares: dict[str, float]) -> dic
         "reaches: only the odometry (rescaled by the pass's measured scale, if any) places "
         "them, so their axial error grows with the odometry's drift over them",
         "min_length_m": MIN_STRETCH_M,
-        "min_pass_fraction": MIN_STRETCH_FRACTION,
         "stretches": [asdict(s) for s in stretches],
         "share_of_pass": shares,
     }
