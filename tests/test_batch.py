@@ -113,6 +113,9 @@ def test_batch_on_the_dask_local_cluster(
         assert int(row["common_fine"]) == fine["common_queries"]
         rmse = result["trajectory"]["corrected"]["rmse_m"]
         assert float(row["corrected_rmse_m"]) == pytest.approx(rmse, rel=1e-5)
+        section = json.loads((run / "report.json").read_text())["unmeasured"]
+        only = sum(s["length_m"] for s in section["stretches"])
+        assert float(row["odometry_only_m"]) == pytest.approx(only, rel=1e-5, abs=1e-9)
     assert int(rows["hume3"]["accepted"]) > 0  # the logs close loops: the metrics mean something
     md = (out / "summary.md").read_text()
     assert "| corrupt | failed |" in md and "2 run, 0 skipped" in md and "1 failed" in md

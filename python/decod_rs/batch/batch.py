@@ -42,6 +42,7 @@ MARKDOWN_COLUMNS = (
     "landmarks",
     "queries",
     "accepted",
+    "odometry_only_m",
     "log_s",
     "wall_s",
     "realtime_x",

@@ -37,7 +37,19 @@ METRIC_COLUMNS = (
     "odom_endpoint_m",
     "corrected_endpoint_m",
 )
-RUN_COLUMNS = ("name", "status", "log", *COUNT_COLUMNS, *TIMING_COLUMNS, *METRIC_COLUMNS, "error")
+#: Metres of the corrected trajectory that only the odometry places (``report.json``
+#: ``unmeasured``, summed over the stretches; empty for a run written before it existed).
+QUALITY_COLUMNS = ("odometry_only_m",)
+RUN_COLUMNS = (
+    "name",
+    "status",
+    "log",
+    *COUNT_COLUMNS,
+    *QUALITY_COLUMNS,
+    *TIMING_COLUMNS,
+    *METRIC_COLUMNS,
+    "error",
+)
 #: Errors are cut to this many characters in the markdown table (the CSV keeps them whole).
 MARKDOWN_ERROR_CHARS = 160
 
@@ -51,13 +63,18 @@ __all__ = [
 
 
 def report_row(run_dir: Path) -> dict[str, Any]:
-    """Counts and stage timings of a complete run (its ``report.json``)."""
+    """Counts, stage timings and the metres only the odometry places, of a complete run (its
+    ``report.json``)."""
     report = json.loads((run_dir / "report.json").read_text(encoding="utf-8"))
     counts, timings = report["counts"], report.get("timings_s", {})
     row: dict[str, Any] = {k: counts.get(k) for k in COUNT_COLUMNS if k != "mode"}
     row["mode"] = report.get("mode")
     row["log_s"] = report.get("log_duration_s")
     row["realtime_x"] = report.get("realtime_factor")
+    unmeasured = report.get("unmeasured")
+    row["odometry_only_m"] = (
+        None if unmeasured is None else sum(s["length_m"] for s in unmeasured["stretches"])
+    )
     for stage in ("extract", "match", "optimise"):
         row[f"{stage}_s"] = timings.get(stage)
     return row
