@@ -122,8 +122,6 @@ pub struct MapCloud {
     pub count: Vec<u32>,
 }
 
-/// A voxel placed for rendering: (pass, world voxel), count-weighted position sum, count,
-/// first submap.
 /// A voxel placed in the world: its sort key ([`placed_key`]: pass, then world voxel), the
 /// count-weighted sum of its position, its count and its first submap.
 type PlacedVoxel = (u128, [f64; 3], u32, u32);

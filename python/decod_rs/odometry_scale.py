@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.graph import LoopConstraint
+from decod_rs.maps import pass_of
 
 FloatArray = NDArray[np.float64]
 
@@ -168,7 +169,7 @@ def odometry_sigma_factors(
     k = int(np.argmax(errors))  # the pass measured less well (the outbound on a tie)
     worst, best = errors[k], errors[1 - k]
     ratio = UNMEASURED_SIGMA_FACTOR if worst >= best * UNMEASURED_SIGMA_FACTOR else worst / best
-    out[scan_stamps > split_stamp if k == 1 else scan_stamps <= split_stamp] = ratio
+    out[pass_of(scan_stamps, split_stamp) == k] = ratio
     return out
 
 

@@ -257,23 +257,18 @@ def _log_queries(rr: Any, rec: Any, run: RecordingInput) -> tuple[int, int]:
         [],
     )
     found = [i for i, r in enumerate(run.results) if r.candidate_index is not None]
-    ends = {
-        i: (a, b)
-        for i, a, b in zip(
-            found,
-            _world_points(
-                run,
-                np.array([run.results[i].query_stamp for i in found], dtype=np.float64),
-                np.array([run.results[i].query_origin for i in found], dtype=np.float64),
-            ),
-            _world_points(
-                run,
-                np.array([run.results[i].candidate_stamp for i in found], dtype=np.float64),
-                np.array([run.results[i].candidate_origin for i in found], dtype=np.float64),
-            ),
-            strict=True,
-        )
-    }
+    hits = [run.results[i] for i in found]
+    starts = _world_points(
+        run,
+        np.array([r.query_stamp for r in hits], dtype=np.float64),
+        np.array([r.query_origin for r in hits], dtype=np.float64).reshape(-1, 3),
+    )
+    stops = _world_points(
+        run,
+        np.array([r.candidate_stamp for r in hits], dtype=np.float64),
+        np.array([r.candidate_origin for r in hits], dtype=np.float64).reshape(-1, 3),
+    )
+    ends = {i: (a, b) for i, a, b in zip(found, starts, stops, strict=True)}
     pairs = 0
     for stamp, idx in sorted(groups.items()):
         strips = 0

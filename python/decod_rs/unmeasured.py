@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.graph import LoopConstraint
+from decod_rs.maps import PASS_NAMES, pass_of
 
 FloatArray = NDArray[np.float64]
 
@@ -56,12 +57,6 @@ class Stretch:
     length_m: float
 
 
-def _passes(stamps: FloatArray, split: float | None) -> list[tuple[str, NDArray[np.bool_]]]:
-    if split is None:
-        return [("outbound", np.ones(stamps.shape, dtype=bool))]
-    return [("outbound", stamps <= split), ("return", stamps > split)]
-
-
 def unmeasured(
     scan_stamps: FloatArray,
     corrected: FloatArray,
@@ -73,7 +68,9 @@ def unmeasured(
     (``scan_stamps`` (N,), ``corrected`` (N, 4, 4); ``constraints`` index ``anchor_stamps``)."""
     stretches: list[Stretch] = []
     shares: dict[str, float] = {}
-    for name, in_pass in _passes(scan_stamps, split_stamp):
+    which = pass_of(scan_stamps, split_stamp)
+    for k, name in enumerate(PASS_NAMES[: 1 if split_stamp is None else 2]):
+        in_pass = which == k
         t = scan_stamps[in_pass]
         if t.size < 2:
             continue
