@@ -226,9 +226,12 @@ def _relief(windows: list[list[Any]], probe: CorridorProbe) -> float:
     return float(np.median(reliefs)) if reliefs else 0.0
 
 
-def _descriptor_points(windows: list[list[Any]], probe: CorridorProbe) -> float:
+def _descriptor_points(
+    windows: list[list[Any]], probed: list[tuple[Any, FloatArray]], probe: CorridorProbe
+) -> float:
     """Wall points one scan puts into a descriptor-long stretch of the range window (module
-    docs, step 5): per probe window, the corridor axis of the window's submap; per scan of it
+    docs, step 5): per probe window, the corridor axis of the window's submap (``probed``: the
+    submap and axis :func:`probe_corridor` measured, not built again); per scan of it
     (three), the scan's own points (not voxel-filtered) ahead of the sensor, bottom sector
     excluded, between ``z_near`` and the derived ``max_range``, times one descriptor length
     over that window; the median over the scans. ``inf`` when nothing could be measured (the
@@ -239,11 +242,9 @@ def _descriptor_points(windows: list[list[Any]], probe: CorridorProbe) -> float:
     z_hi = float(derived["submap"]["max_range_m"])
     if z_hi - z_lo < length:
         z_lo = max(z_hi - length, 0.0)
-    cfg = _probe_config()
     counts = []
-    for window in windows:
-        window_submap = _probe_submap(window, cfg)
-        axis = np.asarray(_core.extract_submap(window_submap, cfg).diagnostics.axis)
+    for window, (window_submap, window_axis) in zip(windows, probed, strict=True):
+        axis = window_axis.copy()
         if float(np.asarray(window_submap.forward) @ axis) < 0:
             axis = -axis  # ahead of the sensor (a window is a second: its heading is one)
         gravity = np.asarray(window_submap.gravity)
@@ -271,6 +272,7 @@ def probe_corridor(
     cfg = _probe_config()
     starts = np.linspace(0, len(scans) - PROBE_SCANS, PROBE_COUNT).astype(int)
     radii, nears, windows = [], [], []
+    probed: list[tuple[Any, FloatArray]] = []  # each kept window's submap and axis
     for s in sorted(set(starts.tolist())):
         window = scans[s : s + PROBE_SCANS]
         submap = _probe_submap(window, cfg)
@@ -281,6 +283,7 @@ def probe_corridor(
         radii.append(r)
         windows.append(window)
         axis = np.asarray(d.axis)
+        probed.append((submap, axis))
         gravity = np.asarray(submap.gravity)
         e1, e2 = _section_axes(axis, gravity)
         cu, cv = d.contour_centre_e1e2
@@ -302,7 +305,7 @@ def probe_corridor(
         probes=len(radii),
     )
     probe = replace(probe, relief_m=_relief(windows, probe))
-    return replace(probe, descriptor_points=_descriptor_points(windows, probe)), imu
+    return replace(probe, descriptor_points=_descriptor_points(windows, probed, probe)), imu
 
 
 def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
