@@ -175,7 +175,13 @@ pub struct MatchingConfig {
     /// distinct joints of one pipe give 3.7–15.5; 2.0 rejects every aliased query and keeps
     /// every true one.
     pub uniqueness_ratio: f64,
-    /// Minimum time between query and candidate submaps, seconds.
+    /// Minimum time between query and candidate submaps, seconds (paper §IV-A), in online
+    /// mode; also the span within which views of a boundary are one pass's track
+    /// (`tracks` module of the Python package). Batch mode, whose queries are the return pass
+    /// and whose database is the outbound pass, needs no separation between them
+    /// (`Eligibility::AcrossPasses`): with a forward-looking sensor the two passes see the
+    /// boundaries near the turnaround within it (the auto value is twice the range window's
+    /// travel time plus a submap, 42 s in a 10 m tunnel at 1 m/s).
     pub min_time_separation_s: f64,
     /// `"five_variable"` (paper), `"scale_only"` (ablation) or `"none"`.
     pub normalisation: String,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from decod_rs.cli import main
-from decod_rs.evaluate import evaluate_run, tolerances_for
+from decod_rs.evaluate import evaluate_run, loop_metrics, tolerances_for
 from decod_rs.plots import plot_descriptor_pair
 from decod_rs.run_files import (
     LandmarkTable,
@@ -113,6 +113,36 @@ def test_run_files_round_trip(tmp_path):
     (tmp_path / "run" / "loops.csv").write_text("\n".join(text))
     with pytest.raises(ValueError, match=r"loops\.csv:3: column db_origin_x"):
         read_loops_csv(tmp_path / "run" / "loops.csv")
+
+
+def test_batch_mode_database_is_the_outbound_pass():
+    # Near the turnaround the two passes see a boundary seconds apart. In batch mode the
+    # return pass queries the whole outbound pass (report.json eligibility
+    # "across_passes"), so the outbound boundary 4 s older is in the query's database;
+    # under the time separation (online mode) it is not, and nor is the query's own.
+    loops = LoopTable(
+        query_stamp=np.array([52.0]),  # on the return at x = 48
+        db_stamp=np.array([np.nan]),
+        query_origin=np.zeros((1, 3)),
+        query_axis=np.array([[1.0, 0, 0]]),
+        db_origin=np.zeros((1, 3)),
+        db_axis=np.array([[1.0, 0, 0]]),
+        inliers=np.array([0]),
+        score=np.zeros(1),
+        accepted=np.array([False]),
+    )
+    landmarks = LandmarkTable(
+        stamp=np.array([48.0, 52.0]),  # x = 48 on the way out, and the query's own
+        origin=np.zeros((2, 3)),
+        axis=np.tile([1.0, 0, 0], (2, 1)),
+        radius_m=np.full(2, 3.0),
+        chainage_m=np.full(2, np.nan),
+    )
+    gt = gt_poses()
+    within = loop_metrics(loops, landmarks, STAMPS, gt, 0.3, 4.8, 30.0)
+    across = loop_metrics(loops, landmarks, STAMPS, gt, 0.3, 4.8, 30.0, split_stamp=50.0)
+    assert within["common_queries"] == 0
+    assert across["common_queries"] == 1
 
 
 def test_metrics_on_known_run(tmp_path):

@@ -17,8 +17,10 @@ tolerance ``tau``:
   point of another corridor leg); else a false positive;
 * a query is *common* if some database landmark lies within tau of it in that sense. The
   database of a query: the ``landmarks.csv`` rows at least ``min_time_separation_s`` (from
-  ``report.json``, default 30 s) older than it, plus its own Top-1 candidate (eligible by
-  construction), so every true positive is common;
+  ``report.json``, default 30 s) older than it, or, in batch mode (``report.json``
+  ``eligibility = "across_passes"``), every row of the outbound pass (stamped at or before
+  ``split_stamp``); plus its own Top-1 candidate (eligible by construction), so every true
+  positive is common;
 * Recall@1 = TP / common queries, Precision@1 = TP / accepted (None when a denominator is 0).
 
 Tolerances: fine 0.3 m; coarse 2.4 m for tunnels, half the joint spacing (median difference
@@ -172,8 +174,10 @@ def _common_queries(
     tolerance_m: float,
     lateral_gate_m: float,
     min_separation_s: float,
+    split_stamp: float | None = None,
 ) -> NDArray[np.bool_]:
-    """Whether each row's query has a database landmark within tolerance (module doc)."""
+    """Whether each row's query has a database landmark within tolerance (module doc);
+    ``split_stamp``: the database is the outbound pass (batch mode), not the older rows."""
     common = np.zeros(len(loops), dtype=bool)
     if landmarks is None or len(landmarks) == 0:
         return common
@@ -195,7 +199,10 @@ def _common_queries(
         loops.query_axis[rows],
     )
     axial, lateral = _axial_lateral(o_q[:, None, :], a_q[:, None, :], lm_o[None, :, :])
-    eligible = lm_st[None, :] <= loops.query_stamp[rows][:, None] - min_separation_s
+    if split_stamp is None:
+        eligible = lm_st[None, :] <= loops.query_stamp[rows][:, None] - min_separation_s
+    else:
+        eligible = np.repeat((lm_st <= split_stamp)[None, :], rows.size, axis=0)
     near = eligible & (axial <= tolerance_m) & (lateral <= lateral_gate_m)
     common[rows] = np.any(near, axis=1)
     return common
@@ -209,8 +216,10 @@ def loop_metrics(
     tolerance_m: float,
     lateral_gate_m: float,
     min_separation_s: float = DEFAULT_MIN_SEPARATION_S,
+    split_stamp: float | None = None,
 ) -> dict[str, Any]:
-    """Recall@1, Precision@1 and their counts at one tolerance (definitions: module doc)."""
+    """Recall@1, Precision@1 and their counts at one tolerance (definitions: module doc;
+    ``split_stamp`` given: batch mode, the database is the outbound pass)."""
     supported, axial, lateral = loop_geometry_errors(loops, gt_stamps, gt_poses)
     within = (axial <= tolerance_m) & (lateral <= lateral_gate_m)  # NaN compares False
     accepted = loops.accepted & supported
@@ -224,6 +233,7 @@ def loop_metrics(
         tolerance_m,
         lateral_gate_m,
         min_separation_s,
+        split_stamp,
     ) | (supported & within)
     n_acc, n_tp, n_common = int(accepted.sum()), int(tp.sum()), int(common.sum())
     return {
@@ -366,6 +376,7 @@ def evaluate_run(
     gate = lateral_gate_m if lateral_gate_m is not None else LATERAL_GATE_FACTOR * coarse
     sep = _find_key(report, "min_time_separation_s")
     min_sep = float(sep) if sep is not None else DEFAULT_MIN_SEPARATION_S
+    split = report.get("split_stamp") if report.get("eligibility") == "across_passes" else None
 
     loops = within_run(read_loops_csv(run / "loops.csv"))
     landmarks = (
@@ -386,7 +397,7 @@ def evaluate_run(
         "pr_curve": {},
     }
     for name, tol in (("fine", fine), ("coarse", coarse)):
-        m = loop_metrics(loops, landmarks, gt_stamps, gt_poses, tol, gate, min_sep)
+        m = loop_metrics(loops, landmarks, gt_stamps, gt_poses, tol, gate, min_sep, split)
         result["loops"][name] = m
         result["pr_curve"][name] = pr_curve(
             loops, gt_stamps, gt_poses, tol, gate, m["common_queries"]

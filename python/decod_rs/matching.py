@@ -220,10 +220,20 @@ class LandmarkDatabase:
         return stored
 
     def query_batch_prepared(
-        self, views: _core.PreparedViews, indices: Sequence[int], *, cross_session: bool = False
+        self,
+        views: _core.PreparedViews,
+        indices: Sequence[int],
+        *,
+        cross_session: bool = False,
+        across_passes: bool = False,
     ) -> list[QueryResult]:
-        """:meth:`query_batch` with landmarks ``indices`` of ``views`` as the queries."""
-        return self._db.query_batch_prepared(views, [int(i) for i in indices], cross_session)
+        """:meth:`query_batch` with landmarks ``indices`` of ``views`` as the queries.
+        ``across_passes``: the queries are another pass of this run than the database's
+        (batch mode), so every entry that shares no scan with a query is eligible, without
+        ``min_time_separation_s``."""
+        return self._db.query_batch_prepared(
+            views, [int(i) for i in indices], cross_session, across_passes
+        )
 
     def boundaries(self) -> list[int]:
         """The physical boundary id of every stored view."""

@@ -184,7 +184,7 @@ def _match(
             views, outbound, [int(tracks[k]) for k in outbound], where[outbound].reshape(-1, 3)
         )
         queries = [k for k, lm in enumerate(landmarks) if lm.submap_stamp > split]
-        return db.query_batch_prepared(views, queries), mode, outbound
+        return db.query_batch_prepared(views, queries, across_passes=True), mode, outbound
     results = []
     order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
     for k in order:
@@ -894,6 +894,8 @@ def _report(
         "points_topic": processor.points_topic,
         "mode": summary.mode,
         "split_stamp": summary.split_stamp,
+        # Which database entries a query may meet (decod_rs.evaluate counts recall the same way).
+        "eligibility": "across_passes" if summary.mode == "batch" else "time_separation",
         "counts": {
             "scans": summary.scans,
             "skipped_outside_odometry": len(processor.skipped_outside_odometry),

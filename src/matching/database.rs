@@ -139,6 +139,12 @@ pub enum Eligibility {
     WithinRun,
     /// Against an earlier survey: every entry (stamps of two sessions are unrelated).
     CrossSession,
+    /// Within one run, between its passes (batch mode: the return pass queries a database of
+    /// the outbound pass): no shared scan, but no time separation either. The split already
+    /// keeps a pass's own views of a boundary apart; the separation would only drop the
+    /// boundaries the two passes see within `min_time_separation_s` of each other, those near
+    /// the turnaround (with a forward-looking sensor in a wide tunnel, 14 m of it).
+    AcrossPasses,
 }
 
 /// Whether the prepared data of `a` is valid for `b` (same normalisation, keypoints, patches).
@@ -162,6 +168,16 @@ fn eligible_prepared(q: &PreparedLandmark, c: &PreparedLandmark, cfg: &MatchingC
         return false;
     }
     !q.scans_may_overlap(c) || eligible(&q.landmark, &c.landmark, cfg)
+}
+
+/// Whether two prepared landmarks' submaps share a scan (checked only when their scan spans
+/// overlap).
+fn shares_scans(q: &PreparedLandmark, c: &PreparedLandmark) -> bool {
+    q.scans_may_overlap(c)
+        && q.landmark
+            .scan_stamps
+            .iter()
+            .any(|s| c.landmark.scan_stamps.contains(s))
 }
 
 /// Paper §IV-A: at least `min_time_separation_s` apart and no shared scans.
@@ -462,7 +478,12 @@ impl LandmarkDatabase {
         eligibility: Eligibility,
     ) -> (Vec<usize>, Vec<usize>) {
         let ok = |(i, c): (usize, &Arc<PreparedLandmark>)| {
-            (eligibility == Eligibility::CrossSession || eligible_prepared(q, c, cfg)).then_some(i)
+            match eligibility {
+                Eligibility::WithinRun => eligible_prepared(q, c, cfg),
+                Eligibility::CrossSession => true,
+                Eligibility::AcrossPasses => !shares_scans(q, c),
+            }
+            .then_some(i)
         };
         let eligible: Vec<usize> = if parallel {
             entries.par_iter().enumerate().filter_map(ok).collect()

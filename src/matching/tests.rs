@@ -216,6 +216,36 @@ fn eligibility_excludes_close_and_overlapping_submaps() {
 }
 
 #[test]
+fn across_passes_drops_the_time_separation_but_not_shared_scans() {
+    // Batch mode: the return pass queries the outbound pass, so a boundary seen by both
+    // within `min_time_separation_s` (near the turnaround) is a candidate; a submap that
+    // shares a scan with the query never is.
+    let c = cfg();
+    let j = joint(1, 6);
+    let mut db = LandmarkDatabase::new(&c);
+    db.add(j.observe(&Observation::default(), 1)).unwrap();
+    let prepare = |l: Landmark| {
+        let shape = patches::PatchShape::new(&c);
+        PreparedLandmark::new_query(Arc::new(l), &c, &shape).unwrap()
+    };
+    let close = prepare(j.observe(&later(10.0), 2));
+    let mut shared = j.observe(&later(10.0), 3);
+    shared.scan_stamps.push(0.5); // a scan of the database submap
+    let shared = prepare(shared);
+    let queries = [&close, &shared];
+    let within = db
+        .query_batch_prepared(&queries, &c, database::Eligibility::WithinRun)
+        .unwrap();
+    assert!(within.iter().all(|r| r.eligible == 0), "{within:?}");
+    let across = db
+        .query_batch_prepared(&queries, &c, database::Eligibility::AcrossPasses)
+        .unwrap();
+    assert_eq!(across[0].eligible, 1);
+    assert!(across[0].accepted, "{:?}", across[0]);
+    assert_eq!(across[1].eligible, 0);
+}
+
+#[test]
 fn gemm_patch_distances_agree_with_brute_force() {
     let c = cfg();
     let shape = patches::PatchShape::new(&c);

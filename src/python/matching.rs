@@ -21,10 +21,13 @@ use crate::matching::database::Eligibility;
 use crate::matching::synthetic::{Grid, JointSurface, Observation, Rng, SurfaceParams};
 use crate::matching::{self, LandmarkDatabase, PairResult, QueryResult};
 
-/// The eligibility rule of a batch query: against an earlier survey, or within the run.
-fn eligibility_of(cross_session: bool) -> Eligibility {
+/// The eligibility rule of a batch query: against an earlier survey, between the passes of
+/// the run, or within the run.
+fn eligibility_of(cross_session: bool, across_passes: bool) -> Eligibility {
     if cross_session {
         Eligibility::CrossSession
+    } else if across_passes {
+        Eligibility::AcrossPasses
     } else {
         Eligibility::WithinRun
     }
@@ -413,19 +416,23 @@ impl PyLandmarkDatabase {
         let db = &mut self.inner;
         detached(py, move || db.extend_prepared(picked, boundaries, &cfg))
     }
-    /// Batch queries with the views at `indices` of `views` (see `query_batch`).
+    /// Batch queries with the views at `indices` of `views` (see `query_batch`);
+    /// `across_passes`: the queries are another pass of the run than the database's (no
+    /// time separation, `Eligibility::AcrossPasses`).
+    #[pyo3(signature = (views, indices, cross_session, across_passes = false))]
     fn query_batch_prepared(
         &self,
         py: Python<'_>,
         views: PyRef<'_, PyPreparedViews>,
         indices: Vec<usize>,
         cross_session: bool,
+        across_passes: bool,
     ) -> PyResult<Vec<PyQueryResult>> {
         let picked: Vec<&matching::PreparedLandmark> =
             views.pick(&indices)?.into_iter().map(|v| &**v).collect();
         let cfg = &views.config;
         let db = &self.inner;
-        let eligibility = eligibility_of(cross_session);
+        let eligibility = eligibility_of(cross_session, across_passes);
         let results = detached(py, move || {
             db.query_batch_prepared(&picked, cfg, eligibility)
         })?;
@@ -493,7 +500,7 @@ impl PyLandmarkDatabase {
             .map(|l| (**l).clone())
             .collect();
         let db = &self.inner;
-        let eligibility = eligibility_of(cross_session);
+        let eligibility = eligibility_of(cross_session, false);
         let results = detached(py, move || db.query_batch_with(&qs, &cfg, eligibility))?;
         Ok(results
             .into_iter()
