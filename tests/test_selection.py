@@ -184,6 +184,18 @@ def test_views_close_in_time_and_space_form_one_track() -> None:
     assert len({ids[0], ids[2], ids[3]}) == 3
 
 
+def test_no_track_crosses_the_turnaround() -> None:
+    # Near the turnaround both passes see a boundary seconds apart and, the drift between
+    # them being small, at one place: without the split they form one track; with it, each
+    # pass keeps its own (what ties the passes is a loop, not a track).
+    views = [synthetic_landmark(1, 1, stamp=t) for t in (0.0, 1.0, 3.0, 4.0)]
+    anchors = {t: np.eye(4) for t in (0.0, 1.0, 3.0, 4.0)}
+    joined = group_views(views, anchors, radius_m=0.4, window_s=30.0)
+    assert len(set(joined.tolist())) == 1
+    split = group_views(views, anchors, radius_m=0.4, window_s=30.0, split_stamp=2.0)
+    assert split[0] == split[1] and split[2] == split[3] and split[0] != split[2]
+
+
 def _probe(radius: float, z_near: float, speed: float) -> CorridorProbe:
     return CorridorProbe(
         radius_m=radius, z_near_m=z_near, speed_mps=speed, scan_rate_hz=10.0, probes=4

@@ -343,6 +343,7 @@ def _match_and_select(
         float(m.duplicate_radius_m),
         float(m.min_time_separation_s),
         same_boundary(ex.landmarks, m, pairs),
+        split_stamp=split,
     )
     where = world_origins(ex.landmarks, anchors)
     results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split, pairs)

@@ -3,9 +3,15 @@
 A joint or ring is detected from several consecutive submaps of the same pass. Over the few
 seconds between them the odometry is accurate to centimetres, so two views whose origins
 lie within ``matching.duplicate_radius_m`` of each other in the odometry frame, from submaps
-less than ``matching.min_time_separation_s`` apart (the same pass: loop partners are at
-least that far apart), view the same boundary. Views are linked pairwise and the connected
-components are the tracks (union-find). The radius stays well below the boundary spacing
+less than ``matching.min_time_separation_s`` apart and on the same side of the turnaround
+(the same pass), view the same boundary. Views are linked pairwise and the connected
+components are the tracks (union-find). Near the turnaround both passes see a boundary
+within that time and, the drift between them being small, at one place; the split keeps
+them two tracks, tied by a loop (batch mode compares the passes without a time separation)
+rather than by a track that would count the same tie twice. On the generalisation matrix
+(778 tracks in 67 of 100 runs crossed the turnaround before) that took 9,909 loops to
+9,803, none wrong either way, and no run's corrected RMSE up by more than 2 cm (two down:
+hume with the forward sensor 7.5 -> 3.7 cm, the shield with it 14.1 -> 10.9 cm). The radius stays well below the boundary spacing
 (>= 1 m between pipe joints, >= 1.2 m between tunnel rings), so distinct boundaries never
 chain into one track.
 
@@ -61,9 +67,11 @@ def candidate_links(
     anchors: dict[float, FloatArray],
     radius_m: float,
     window_s: float,
+    split_stamp: float | None = None,
 ) -> list[tuple[int, int]]:
     """Pairs (earlier, later) of views from different submaps less than ``window_s`` apart
-    whose origins lie within ``radius_m`` in the odometry frame."""
+    whose origins lie within ``radius_m`` in the odometry frame, and of one pass (both at or
+    both after ``split_stamp``, the turnaround, when there is one)."""
     where = world_origins(landmarks, anchors)
     stamps = np.array([lm.submap_stamp for lm in landmarks], dtype=np.float64)
     order = np.argsort(stamps, kind="stable")
@@ -78,6 +86,8 @@ def candidate_links(
             continue
         # One submap's boundaries are distinct by construction (NMS): never linked.
         ok = (t[b] - t[a] < window_s) & (t[b] != t[a])
+        if split_stamp is not None:
+            ok &= (t[b] <= split_stamp) == (t[a] <= split_stamp)
         ok &= np.linalg.norm(w[b] - w[a], axis=1) < radius_m
         links.extend((int(order[a]), int(order[k])) for k in b[ok])
     return links
@@ -89,14 +99,16 @@ def group_views(
     radius_m: float,
     window_s: float,
     confirm: Callable[[list[tuple[int, int]]], list[bool]] | None = None,
+    split_stamp: float | None = None,
 ) -> NDArray[np.int64]:
     """A track id per landmark (module docs); ids are 0.. in order of first view.
     ``confirm(links)``: for each candidate link (earlier, later), whether the descriptors
-    agree that the two views show one boundary (None: the radius alone decides)."""
+    agree that the two views show one boundary (None: the radius alone decides);
+    ``split_stamp``: the turnaround, which no track crosses."""
     n = len(landmarks)
     if n == 0:
         return np.zeros(0, dtype=np.int64)
-    links = candidate_links(landmarks, anchors, radius_m, window_s)
+    links = candidate_links(landmarks, anchors, radius_m, window_s, split_stamp)
     confirmed = [True] * len(links) if confirm is None else confirm(links)
     parent = list(range(n))
     for (i, j), ok in zip(links, confirmed, strict=True):
