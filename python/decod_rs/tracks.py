@@ -11,9 +11,9 @@ them two tracks, tied by a loop (batch mode compares the passes without a time s
 rather than by a track that would count the same tie twice. On the generalisation matrix
 (778 tracks in 67 of 100 runs crossed the turnaround before) that took 9,909 loops to
 9,803, none wrong either way, and no run's corrected RMSE up by more than 2 cm (two down:
-hume with the forward sensor 7.5 -> 3.7 cm, the shield with it 14.1 -> 10.9 cm). The radius stays well below the boundary spacing
-(>= 1 m between pipe joints, >= 1.2 m between tunnel rings), so distinct boundaries never
-chain into one track.
+hume with the forward sensor 7.5 -> 3.7 cm, the shield with it 14.1 -> 10.9 cm). The
+radius stays well below the boundary spacing (>= 1 m between pipe joints, >= 1.2 m between
+tunnel rings), so distinct boundaries never chain into one track.
 
 The radius alone is not enough when the odometry stalls: with joints 1 m apart and an
 odometry reporting 60 % of the distance, views of two joints taken two anchors apart landed
