@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.collections import LineCollection
 from matplotlib.ticker import FuncFormatter, NullFormatter
 from numpy.typing import ArrayLike, NDArray
 
@@ -41,10 +42,15 @@ __all__ = [
 _COLOURS = {"ground truth": "0.2", "odometry": "tab:red", "corrected": "tab:blue"}
 
 
-def _save(fig: Any, path: str | Path) -> Path:
+def _save(fig: Any, path: str | Path, tight: bool = True) -> Path:
+    """``tight=False`` for a figure laid out with fixed margins (no second layout pass)."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120, bbox_inches="tight")
+    # zlib level 1: the figures are mostly flat colour (and the descriptors' noise does not
+    # compress anyway); level 6 took 0.04 s of a 0.2 s descriptor figure.
+    fig.savefig(
+        out, dpi=120, bbox_inches="tight" if tight else None, pil_kwargs={"compress_level": 1}
+    )
     plt.close(fig)
     return out
 
@@ -85,7 +91,9 @@ def plot_trajectories(
     axis = _main_axis(ref)
     t0 = min(s[0] for s, _ in series.values())
 
-    fig, (top, along) = plt.subplots(2, 1, figsize=(10, 8), layout="constrained")
+    # Fixed margins, no constrained layout or tight bounding box: the figure of every run.
+    fig, (top, along) = plt.subplots(2, 1, figsize=(10, 8))
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.065, top=0.96, hspace=0.25)
     for name, (s, p) in series.items():
         xyz = p[:, :3, 3]
         style = "--" if name == "ground truth" else "-"
@@ -100,12 +108,26 @@ def plot_trajectories(
         d_st = np.array([d for _, d in usable])
         pq = interpolate_poses(s, p, q_st)[:, :3, 3]
         pd = interpolate_poses(s, p, d_st)[:, :3, 3]
-        for k in range(len(usable)):
-            kw: dict[str, Any] = {"color": _COLOURS[name], "lw": 0.6, "alpha": 0.6}
-            if k == 0:
-                kw["label"] = f"loops ({name})"
-            top.plot([pq[k, 0], pd[k, 0]], [pq[k, 1], pd[k, 1]], ":", **kw)
-            along.plot([q_st[k] - t0, d_st[k] - t0], [pq[k] @ axis, pd[k] @ axis], ":", **kw)
+        # One collection per panel, not one line per loop: a 64-beam run keeps 200+ loops,
+        # and 800 line artists took 2.6-3.5 s to draw (and to place the legend around).
+        segments = {
+            top: np.stack([pq[:, :2], pd[:, :2]], axis=1),
+            along: np.stack(
+                [np.column_stack([q_st - t0, pq @ axis]), np.column_stack([d_st - t0, pd @ axis])],
+                axis=1,
+            ),
+        }
+        for ax, lines in segments.items():
+            ax.add_collection(
+                LineCollection(
+                    list(lines),
+                    colors=_COLOURS[name],
+                    linewidths=0.6,
+                    linestyles=":",
+                    alpha=0.6,
+                    label=f"loops ({name})",
+                )
+            )
     top.set_xlabel("x [m]")
     top.set_ylabel("y [m]")
     top.set_title("top view")
@@ -119,7 +141,7 @@ def plot_trajectories(
     along.set_title("along the corridor")
     along.grid(alpha=0.3)
     along.legend(loc="best", fontsize=8)
-    return _save(fig, path)
+    return _save(fig, path, tight=False)
 
 
 def plot_error_over_time(
@@ -193,7 +215,10 @@ def plot_descriptor_pair(
     lim = float(np.max(np.abs(np.concatenate(observed)))) if observed else 1.0
     lim = lim or 1.0
     cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.6")
-    fig, axes = plt.subplots(1, 2, figsize=(12, 3.4), layout="constrained")
+    # Fixed margins instead of a constrained layout and a tight bounding box (two layout
+    # passes over every tick label): 0.48-0.60 -> 0.2 s a figure, four per run.
+    fig, axes = plt.subplots(1, 2, figsize=(12, 3.4))
+    fig.subplots_adjust(left=0.055, right=0.9, bottom=0.16, top=0.8 if title else 0.88, wspace=0.2)
     image = None
     for ax, arr, name in zip(axes, arrays, ("query", "database"), strict=True):
         image = ax.imshow(
@@ -209,10 +234,12 @@ def plot_descriptor_pair(
         ax.set_xlabel("arclength bin p (from the gravity direction)")
         ax.set_ylabel("axial bin z (boundary at the centre)")
     if image is not None:
-        fig.colorbar(image, ax=list(axes), label="signed offset s [m]", shrink=0.9)
+        top = 0.8 if title else 0.88
+        cax = fig.add_axes((0.915, 0.16, 0.012, top - 0.16))
+        fig.colorbar(image, cax=cax, label="signed offset s [m]")
     if title:
         fig.suptitle(title)
-    return _save(fig, path)
+    return _save(fig, path, tight=False)
 
 
 def plot_map_consistency(path: str | Path, figures: Mapping[str, Consistency]) -> Path:
