@@ -26,6 +26,7 @@ a recording is asked for.
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib
 import importlib.util
 import threading
@@ -309,15 +310,25 @@ def _log_queries(rr: Any, rec: Any, run: RecordingInput) -> tuple[int, int]:
     return len(run.results), pairs
 
 
-def _descriptor_rgb(values: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.uint8]:
-    """A (rows, cols) descriptor as an RGB image: blue-white-red over its own +-max offset,
-    unobserved cells grey, +z (row 0 of the descriptor is -z) at the top."""
+@functools.cache
+def _diverging_lut() -> NDArray[np.uint8]:
+    """The RdBu_r colour of each of the colormap's 256 entries as RGB bytes."""
     from matplotlib import colormaps
 
+    cmap = colormaps["RdBu_r"]
+    return np.asarray((cmap(np.arange(cmap.N))[:, :3] * 255).astype(np.uint8))
+
+
+def _descriptor_rgb(values: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.uint8]:
+    """A (rows, cols) descriptor as an RGB image: blue-white-red over its own +-max offset,
+    unobserved cells grey, +z (row 0 of the descriptor is -z) at the top. The colormap's
+    entries are looked up directly (its own call took 0.4 ms a descriptor, two per accepted
+    query): the entry of x in [0, 1] is floor(x N), 1 itself the last, as the colormap does."""
+    lut = _diverging_lut()
     observed = mask & np.isfinite(values)
     lim = float(np.max(np.abs(values[observed]))) if np.any(observed) else 1.0
     scaled = np.clip(0.5 + 0.5 * np.where(observed, values, 0.0) / (lim or 1.0), 0.0, 1.0)
-    rgb = (colormaps["RdBu_r"](scaled)[..., :3] * 255).astype(np.uint8)
+    rgb = lut[np.minimum((scaled * len(lut)).astype(np.int64), len(lut) - 1)]
     rgb[~observed] = 153
     return np.ascontiguousarray(rgb[::-1])
 
