@@ -164,29 +164,29 @@ fn same_preparation(a: &MatchingConfig, b: &MatchingConfig) -> bool {
 /// [`eligible`] on prepared landmarks, skipping the scan comparison when the submaps' scan
 /// spans do not overlap (the common case; it made the check cost more than the coarse stage).
 fn eligible_prepared(q: &PreparedLandmark, c: &PreparedLandmark, cfg: &MatchingConfig) -> bool {
-    if (q.landmark.submap_stamp - c.landmark.submap_stamp).abs() < cfg.min_time_separation_s {
-        return false;
-    }
-    !q.scans_may_overlap(c) || eligible(&q.landmark, &c.landmark, cfg)
+    separated(&q.landmark, &c.landmark, cfg) && !shares_scans(q, c)
 }
 
-/// Whether two prepared landmarks' submaps share a scan (checked only when their scan spans
+/// Whether two prepared landmarks' submaps share a scan (compared only when their scan spans
 /// overlap).
 fn shares_scans(q: &PreparedLandmark, c: &PreparedLandmark) -> bool {
-    q.scans_may_overlap(c)
-        && q.landmark
-            .scan_stamps
-            .iter()
-            .any(|s| c.landmark.scan_stamps.contains(s))
+    q.scans_may_overlap(c) && share_a_scan(&q.landmark, &c.landmark)
+}
+
+fn separated(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> bool {
+    (query.submap_stamp - candidate.submap_stamp).abs() >= cfg.min_time_separation_s
+}
+
+fn share_a_scan(query: &Landmark, candidate: &Landmark) -> bool {
+    query
+        .scan_stamps
+        .iter()
+        .any(|s| candidate.scan_stamps.contains(s))
 }
 
 /// Paper §IV-A: at least `min_time_separation_s` apart and no shared scans.
 pub fn eligible(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> bool {
-    (query.submap_stamp - candidate.submap_stamp).abs() >= cfg.min_time_separation_s
-        && !query
-            .scan_stamps
-            .iter()
-            .any(|s| candidate.scan_stamps.contains(s))
+    separated(query, candidate, cfg) && !share_a_scan(query, candidate)
 }
 
 impl LandmarkDatabase {
