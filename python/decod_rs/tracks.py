@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.maps import pass_of
 
 FloatArray = NDArray[np.float64]
 
@@ -76,6 +77,7 @@ def candidate_links(
     stamps = np.array([lm.submap_stamp for lm in landmarks], dtype=np.float64)
     order = np.argsort(stamps, kind="stable")
     t, w = stamps[order], where[order]
+    passes = pass_of(t, split_stamp)  # all one pass without a turnaround
     # The later views within the window of each one (sorted stamps: a prefix of the rest;
     # one past the searched end, re-checked exactly, absorbs rounding of t + window).
     ends = np.minimum(np.searchsorted(t, t + window_s, side="left") + 1, len(t))
@@ -85,9 +87,7 @@ def candidate_links(
         if b.size == 0:
             continue
         # One submap's boundaries are distinct by construction (NMS): never linked.
-        ok = (t[b] - t[a] < window_s) & (t[b] != t[a])
-        if split_stamp is not None:
-            ok &= (t[b] <= split_stamp) == (t[a] <= split_stamp)
+        ok = (t[b] - t[a] < window_s) & (t[b] != t[a]) & (passes[b] == passes[a])
         ok &= np.linalg.norm(w[b] - w[a], axis=1) < radius_m
         links.extend((int(order[a]), int(order[k])) for k in b[ok])
     return links
