@@ -24,6 +24,7 @@ pub mod map;
 pub mod map_quality;
 pub mod matching;
 pub mod pipeline;
+mod radix;
 pub mod scan;
 pub mod submap;
 pub mod survey;

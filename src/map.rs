@@ -11,7 +11,7 @@
 //! centimetres of travel, each seeing a metre ahead) thus share voxels, and memory grows with
 //! the distance travelled (times `(segment_length_m + 2 max_range_m) / segment_length_m`,
 //! the overlap of neighbouring segments), not with the duration of the log or the number of
-//! scans: a robot standing still adds nothing.
+//! scans: a robot standing still adds nothing once its segment's rows are merged.
 //!
 //! **Placement.** A voxel is placed by the pose of the submap that first saw it:
 //! `T_world_anchor(k) * T_odom_anchor(k)^-1 * T_odom_reference * centroid`, where
@@ -24,10 +24,10 @@
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 use crate::error::{DecodError, Result};
 use crate::geometry::Pose;
+use crate::radix;
 
 /// Map voxel edge as a multiple of the submap voxel (`submap.voxel_m`): 0.054 r under the
 /// auto configuration (~115 points round the circumference), 16.5 mm under the pipe preset,
@@ -70,43 +70,114 @@ struct Segment {
     voxels: Vec<MapVoxel>,
 }
 
-/// The segment being filled: a hash map from voxel key to running sums.
+/// One voxel of one submap: the sum and count of the submap's points in it.
+#[derive(Clone, Copy, Debug)]
+struct SubmapVoxel {
+    key: [i32; 3],
+    sum: [f64; 3],
+    count: u32,
+    submap: u32,
+}
+
+/// The segment being filled: each submap's voxels, appended in submap order and merged (one
+/// row per voxel) when the segment closes, or before, whenever the rows have doubled since the
+/// last merge (a robot standing still adds a submap's voxels again and again, but never
+/// closes its segment). A hash table of the segment's voxels, probed once per submap voxel,
+/// missed the cache on nearly every probe: half of the map's CPU on the pe pipe with 64
+/// beams (780,000 voxels); sorting and merging reads the rows in order.
 #[derive(Debug)]
 struct OpenSegment {
     reference: u32,
     reference_from_world: Pose,
     travelled_m: f64,
     last_position: Vector3<f64>,
-    voxels: FxHashMap<[i32; 3], ([f64; 3], u32, u32)>,
+    rows: Vec<SubmapVoxel>,
+    /// Rows after the last merge.
+    merged: usize,
 }
 
+/// Rows an open segment holds before its first merge.
+const MERGE_MIN_ROWS: usize = 1 << 16;
+
 impl OpenSegment {
-    fn close(self) -> Segment {
-        let mut keyed: Vec<([i32; 3], MapVoxel)> = self
-            .voxels
-            .into_iter()
-            .map(|(key, (sum, count, first))| {
-                let n = f64::from(count);
-                let centroid = [
-                    (sum[0] / n) as f32,
-                    (sum[1] / n) as f32,
-                    (sum[2] / n) as f32,
-                ];
-                let voxel = MapVoxel {
-                    centroid,
-                    count,
-                    first_submap: first,
-                };
-                (key, voxel)
-            })
-            .collect();
-        // Deterministic order (HashMap iteration is not): same log, same map.
-        keyed.sort_unstable_by_key(|(k, _)| *k);
-        Segment {
-            reference: self.reference,
-            voxels: keyed.into_iter().map(|(_, v)| v).collect(),
+    fn push_submap(&mut self, voxels: impl Iterator<Item = SubmapVoxel>) {
+        self.rows.extend(voxels);
+        if self.rows.len() > MERGE_MIN_ROWS.max(2 * self.merged) {
+            self.merge();
         }
     }
+
+    fn merge(&mut self) {
+        merge_rows(&mut self.rows);
+        self.merged = self.rows.len();
+    }
+
+    fn close(mut self) -> Segment {
+        self.merge();
+        let voxels = self
+            .rows
+            .iter()
+            .map(|row| {
+                let n = f64::from(row.count.max(1));
+                MapVoxel {
+                    centroid: row.sum.map(|v| (v / n) as f32),
+                    count: row.count,
+                    first_submap: row.submap,
+                }
+            })
+            .collect();
+        Segment {
+            reference: self.reference,
+            voxels,
+        }
+    }
+}
+
+/// `rows` merged into one row per voxel, in key order: the sums added in row order (the same
+/// additions, in the same order, however often rows are merged: a segment's rows are appended
+/// in submap order), the submap the first row's (the earliest that saw the voxel).
+fn merge_rows(rows: &mut Vec<SubmapVoxel>) {
+    sort_by_voxel(rows);
+    let mut out = 0;
+    for i in 0..rows.len() {
+        let row = rows[i];
+        if out > 0 && rows[out - 1].key == row.key {
+            let cell = &mut rows[out - 1];
+            for (s, v) in cell.sum.iter_mut().zip(row.sum) {
+                *s += v;
+            }
+            cell.count = cell.count.saturating_add(row.count);
+        } else {
+            // Summed from zero like the others (0 + -0 is +0).
+            let sum = row.sum.map(|v| 0.0 + v);
+            rows[out] = SubmapVoxel { sum, ..row };
+            out += 1;
+        }
+    }
+    rows.truncate(out);
+}
+
+/// Stable sort of `rows` by voxel key `(x, y, z)`: a radix sort of the keys re-packed
+/// relative to their own range (a segment spans a few thousand voxels per axis), or, when the
+/// range needs more than 64 bits, a comparison sort.
+fn sort_by_voxel(rows: &mut Vec<SubmapVoxel>) {
+    let (mut lo, mut hi) = ([i32::MAX; 3], [i32::MIN; 3]);
+    for row in rows.iter() {
+        for axis in 0..3 {
+            lo[axis] = lo[axis].min(row.key[axis]);
+            hi[axis] = hi[axis].max(row.key[axis]);
+        }
+    }
+    let span = |a: usize| u64::from(hi[a].abs_diff(lo[a]));
+    let bits: [u32; 3] = std::array::from_fn(|a| 64 - span(a).leading_zeros());
+    if rows.is_empty() || bits.iter().sum::<u32>() > u64::BITS {
+        rows.sort_by_key(|r| r.key);
+        return;
+    }
+    let offset = |r: &SubmapVoxel, a: usize| u64::from(r.key[a].abs_diff(lo[a]));
+    radix::sort_by_key(rows, bits.iter().sum(), |r| {
+        (offset(r, 0) << (bits[1] + bits[2])) | (offset(r, 1) << bits[2]) | offset(r, 2)
+    });
 }
 
 /// A map rendered by a trajectory: one point per (pass, voxel), sorted by pass then voxel.
@@ -148,8 +219,8 @@ pub struct SegmentMap {
     open: Option<OpenSegment>,
     /// Every how many points of a submap are added (1 = all).
     point_stride: usize,
-    /// Per-submap aggregation table, reused (its capacity is kept between submaps).
-    scratch: FxHashMap<[i32; 3], ([f64; 3], u32)>,
+    /// A submap's rows on their way into the segment, reused (its capacity is kept).
+    scratch: Vec<SubmapVoxel>,
 }
 
 impl SegmentMap {
@@ -172,7 +243,7 @@ impl SegmentMap {
             segments: Vec::new(),
             open: None,
             point_stride: 1,
-            scratch: FxHashMap::default(),
+            scratch: Vec::new(),
         })
     }
 
@@ -209,34 +280,27 @@ impl SegmentMap {
             reference_from_world: odom_from_anchor.inverse(),
             travelled_m: 0.0,
             last_position: position,
-            voxels: FxHashMap::default(),
+            rows: Vec::new(),
+            merged: 0,
         });
         let reference_from_anchor = open.reference_from_world * odom_from_anchor;
         let inv = 1.0 / self.voxel_m;
-        // Aggregate the submap in a small table first (cache-resident: a map voxel holds
-        // several submap points), then touch the segment's large table once per voxel.
-        let scratch = &mut self.scratch;
-        scratch.clear();
-        for p in points.iter().step_by(self.point_stride) {
+        // The submap's points merged into one row per voxel, then appended to the segment.
+        let rows = &mut self.scratch;
+        rows.clear();
+        rows.extend(points.iter().step_by(self.point_stride).filter_map(|p| {
             let q = reference_from_anchor
                 * Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-            let Some(key) = voxel_key(&q.coords, inv) else {
-                continue;
-            };
-            let cell = scratch.entry(key).or_insert(([0.0; 3], 0));
-            cell.0[0] += q.x;
-            cell.0[1] += q.y;
-            cell.0[2] += q.z;
-            cell.1 += 1;
-        }
-        open.voxels.reserve(scratch.len() / 4);
-        for (key, (sum, n)) in scratch.drain() {
-            let cell = open.voxels.entry(key).or_insert(([0.0; 3], 0, index));
-            cell.0[0] += sum[0];
-            cell.0[1] += sum[1];
-            cell.0[2] += sum[2];
-            cell.1 += n;
-        }
+            let key = voxel_key(&q.coords, inv)?;
+            Some(SubmapVoxel {
+                key,
+                sum: [q.x, q.y, q.z],
+                count: 1,
+                submap: index,
+            })
+        }));
+        merge_rows(rows);
+        open.push_submap(rows.drain(..));
         self.submap_stamps.push(stamp);
         self.odom_from_submap.push(*odom_from_anchor);
     }
@@ -275,7 +339,7 @@ impl SegmentMap {
     /// Voxels held in memory (all segments): what bounds the map's memory.
     pub fn stored_voxels(&self) -> usize {
         self.segments.iter().map(|s| s.voxels.len()).sum::<usize>()
-            + self.open.as_ref().map_or(0, |o| o.voxels.len())
+            + self.open.as_ref().map_or(0, |o| o.rows.len())
     }
 
     /// Every segment as (reference submap, voxels): the closed ones borrowed, the open one
@@ -292,7 +356,8 @@ impl SegmentMap {
                 reference_from_world: open.reference_from_world,
                 travelled_m: open.travelled_m,
                 last_position: open.last_position,
-                voxels: open.voxels.clone(),
+                rows: open.rows.clone(),
+                merged: open.merged,
             };
             let closed = copy.close();
             out.push((closed.reference, std::borrow::Cow::Owned(closed.voxels)));
@@ -414,11 +479,13 @@ fn voxel_key(p: &Vector3<f64>, inv: f64) -> Option<[i32; 3]> {
     let limit = f64::from(i32::MAX) - 1.0;
     let mut key = [0i32; 3];
     for (slot, v) in key.iter_mut().zip(p.iter()) {
-        let scaled = (v * inv).floor();
+        let scaled = v * inv;
         if !(scaled.is_finite() && scaled.abs() < limit) {
             return None;
         }
-        *slot = scaled as i32;
+        // floor as a truncation corrected below zero (no libm call on baseline x86-64).
+        let t = scaled as i32;
+        *slot = if f64::from(t) > scaled { t - 1 } else { t };
     }
     Some(key)
 }
@@ -450,12 +517,18 @@ mod tests {
             .collect();
         map.add_submap(0.0, &sensor, &wall);
         let after_one = map.stored_voxels();
-        for k in 1..500 {
+        // Enough submaps for the open segment's rows to be merged several times.
+        let submaps = 4 * MERGE_MIN_ROWS / after_one;
+        let mut most = 0;
+        for k in 1..submaps {
             map.add_submap(k as f64, &sensor, &wall);
+            most = most.max(map.stored_voxels());
         }
+        assert!(most <= MERGE_MIN_ROWS + after_one, "{most} rows held");
+        map.finish();
         assert_eq!(map.stored_voxels(), after_one);
         assert_eq!(map.segment_count(), 1);
-        assert_eq!(map.submap_stamps().len(), 500);
+        assert_eq!(map.submap_stamps().len(), submaps);
     }
 
     #[test]

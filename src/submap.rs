@@ -19,7 +19,7 @@ fn voxel_key_of(x: f64, y: f64, z: f64, voxel: f64) -> u64 {
 
 /// `floor(v / voxel)` as a truncation corrected below zero (see [`voxel_key_of`]).
 #[inline(always)]
-fn voxel_index(v: f64, voxel: f64) -> i64 {
+pub(crate) fn voxel_index(v: f64, voxel: f64) -> i64 {
     let scaled = v / voxel;
     let t = scaled as i64;
     if (t as f64) > scaled { t - 1 } else { t }
@@ -65,9 +65,6 @@ impl WindowKeys {
 /// the anchor frame (f32: a micrometre at 10 m; the submap stores f32 centroids anyway).
 type Keyed = (u64, [f32; 3]);
 
-/// Bits per digit of the radix sort: 2,048 buckets, whose counters (16 KB) stay in L1.
-const DIGIT_BITS: u32 = 11;
-
 /// Voxel centroids of `rows` (keys from [`voxel_key_of`]), one per occupied voxel, in the
 /// order of the voxel indices `(x, y, z)`.
 ///
@@ -97,7 +94,7 @@ fn voxel_centroids(mut rows: Vec<Keyed>) -> Vec<[f32; 3]> {
 }
 
 /// The mean position of each run of equal keys, in order (sums in f64, in row order).
-fn run_means<K: RadixKey>(rows: &[(K, [f32; 3])]) -> Vec<[f32; 3]> {
+fn run_means<K: PartialEq>(rows: &[(K, [f32; 3])]) -> Vec<[f32; 3]> {
     let mut out = Vec::new();
     for run in rows.chunk_by(|a, b| a.0 == b.0) {
         let mut sum = [0.0f64; 3];
@@ -110,61 +107,6 @@ fn run_means<K: RadixKey>(rows: &[(K, [f32; 3])]) -> Vec<[f32; 3]> {
         out.push(sum.map(|v| (v / n) as f32));
     }
     out
-}
-
-/// A sort key of [`radix_sort`]: one `DIGIT_BITS` digit at a time.
-trait RadixKey: Copy + Default + PartialEq {
-    fn digit(self, shift: u32) -> usize;
-}
-
-impl RadixKey for u32 {
-    #[inline(always)]
-    fn digit(self, shift: u32) -> usize {
-        ((self >> shift) as usize) & ((1 << DIGIT_BITS) - 1)
-    }
-}
-
-impl RadixKey for u64 {
-    #[inline(always)]
-    fn digit(self, shift: u32) -> usize {
-        ((self >> shift) as usize) & ((1 << DIGIT_BITS) - 1)
-    }
-}
-
-/// Stable least-significant-digit radix sort of `rows` by the low `bits` bits of their keys
-/// (a pass whose digit is the same for every row is skipped). Every pass's counts come from
-/// one read of the rows.
-fn radix_sort<K: RadixKey>(rows: &mut Vec<(K, [f32; 3])>, bits: u32) {
-    let buckets = 1usize << DIGIT_BITS;
-    let passes = bits.div_ceil(DIGIT_BITS) as usize;
-    let mut counts = vec![0usize; passes * buckets];
-    for (k, _) in rows.iter() {
-        for (pass, slots) in counts.chunks_exact_mut(buckets).enumerate() {
-            slots[k.digit(pass as u32 * DIGIT_BITS)] += 1;
-        }
-    }
-    let mut scratch: Vec<(K, [f32; 3])> = Vec::new();
-    for (pass, offsets) in counts.chunks_exact_mut(buckets).enumerate() {
-        if offsets.contains(&rows.len()) {
-            continue;
-        }
-        let shift = pass as u32 * DIGIT_BITS;
-        let mut start = 0;
-        for slot in offsets.iter_mut() {
-            let count = *slot;
-            *slot = start;
-            start += count;
-        }
-        if scratch.len() != rows.len() {
-            scratch = vec![(K::default(), [0.0; 3]); rows.len()];
-        }
-        for row in rows.iter() {
-            let d = row.0.digit(shift);
-            scratch[offsets[d]] = *row;
-            offsets[d] += 1;
-        }
-        std::mem::swap(rows, &mut scratch);
-    }
 }
 
 /// Every point of `scans` kept by the range window (closer than `sqrt(min_r2)` to its own
@@ -198,9 +140,12 @@ fn accumulate<K>(
     rows
 }
 
-/// [`run_means`] of `rows` sorted by the low `bits` bits of their keys.
-fn sorted_means<K: RadixKey>(mut rows: Vec<(K, [f32; 3])>, bits: u32) -> Vec<[f32; 3]> {
-    radix_sort(&mut rows, bits);
+/// [`run_means`] of `rows` sorted by the low `bits` bits of their keys ([`radix`]).
+fn sorted_means<K: Copy + PartialEq + Into<u64>>(
+    mut rows: Vec<(K, [f32; 3])>,
+    bits: u32,
+) -> Vec<[f32; 3]> {
+    radix::sort_by_key(&mut rows, bits, |r| r.0.into());
     run_means(&rows)
 }
 
@@ -209,6 +154,7 @@ use nalgebra::Vector3;
 use crate::config::SubmapConfig;
 use crate::error::{DecodError, Result};
 use crate::geometry::Pose;
+use crate::radix;
 use crate::scan::Scan;
 
 /// Scans accumulated into the anchor scan's body frame.
