@@ -674,6 +674,10 @@ def run_log(
     if srv is not None:
         check_compatible(srv, cfg)
     timings["configure"] = time.perf_counter() - t0
+    if rerun is not None:
+        from decod_rs.recording import import_rerun_in_background
+
+        import_rerun_in_background()
 
     t0 = time.perf_counter()
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
