@@ -30,6 +30,13 @@ from decod_rs.map_quality import Consistency, map_consistency, outbound_path
 from decod_rs.maps import PASS_COLOURS, MapCloud, anchor_poses, render_map
 from decod_rs.pipeline import run_log
 from decod_rs.ply import write_ply
+from decod_rs.recording import (
+    RecordingInput,
+    RecordingJob,
+    recording_data,
+    write_recording_data,
+)
+from decod_rs.recording import main as recording_main
 from decod_rs.sim import simulate
 from decod_rs.tum import interpolate_poses, read_tum
 
@@ -245,6 +252,51 @@ def test_the_recording_holds_every_decision(run: Path) -> None:
     )
     assert check.returncode == 0, check.stderr
     assert "verified without error" in check.stdout + check.stderr
+
+
+def _empty_recording() -> RecordingInput:
+    stamps = np.array([0.0, 0.1, 0.2])
+    poses = np.repeat(np.eye(4)[None], 3, axis=0)
+    return RecordingInput(
+        scan_stamps=stamps,
+        odometry=poses,
+        corrected=poses,
+        split_stamp=None,
+        anchor_stamps=stamps[1:2],
+        maps={},
+        submap_points=np.zeros((0, 3), dtype=np.float32),
+        submap_index=np.zeros(0, dtype=np.uint32),
+        landmarks=[],
+        results=[],
+        keep=[],
+        reasons=[],
+    )
+
+
+def test_a_recording_worker_that_fails_is_an_error_naming_the_file(tmp_path: Path) -> None:
+    pytest.importorskip("rerun", reason="the dev extra installs rerun-sdk")
+    ok = RecordingJob(tmp_path / "ok.rrd", _empty_recording()).wait()
+    assert ok["submaps"] == 1 and ok["queries"] == 0 and (tmp_path / "ok.rrd").stat().st_size
+    here = RecordingJob(tmp_path / "here.rrd", _empty_recording(), worker=False).wait()
+    assert {k: here[k] for k in ("submaps", "queries", "descriptor_pairs")} == {
+        k: ok[k] for k in ("submaps", "queries", "descriptor_pairs")
+    }
+    (tmp_path / "a_file").write_text("not a directory")
+    bad = tmp_path / "a_file" / "run.rrd"  # its parent cannot be made
+    with pytest.raises(RuntimeError, match=r"a_file/run\.rrd: the recording was not written"):
+        RecordingJob(bad, _empty_recording()).wait()
+
+
+def test_the_recording_worker_reads_data_not_objects(tmp_path: Path) -> None:
+    """Its input is numbers and strings of one version: an object array (pickle) or another
+    version is refused before anything is drawn."""
+    data = recording_data(_empty_recording())
+    with pytest.raises(ValueError, match="recording data version 99"):
+        write_recording_data(tmp_path / "x.rrd", {**data, "version": np.array(99)})
+    np.savez(tmp_path / "objects.npz", **data, trap=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(ValueError, match="allow_pickle"):
+        recording_main([str(tmp_path / "objects.npz"), str(tmp_path / "y.rrd")])
+    assert not (tmp_path / "x.rrd").exists() and not (tmp_path / "y.rrd").exists()
 
 
 def test_a_missing_rerun_sdk_is_a_clear_error_before_any_work(

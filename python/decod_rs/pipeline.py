@@ -63,6 +63,7 @@ from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
 from decod_rs.tracks import group_views, tracked_loops, views_per_landmark, world_origins
 from decod_rs.tum import interpolate_poses, write_tum
 from decod_rs.unmeasured import Stretch, unmeasured, unmeasured_report
+from decod_rs.visuals import Visuals, finish_visuals, start_visuals
 
 FloatArray = NDArray[np.float64]
 
@@ -674,10 +675,9 @@ def run_log(
     if srv is not None:
         check_compatible(srv, cfg)
     timings["configure"] = time.perf_counter() - t0
-    if rerun is not None:
-        from decod_rs.recording import import_rerun_in_background
-
-        import_rerun_in_background()
+    # The recording is written by a worker process while the figures are drawn, if any.
+    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun), worker=plots)
+    visuals.prepare()
 
     t0 = time.perf_counter()
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
@@ -700,7 +700,6 @@ def run_log(
     )
 
     head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}
-    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
     extraction = Extracted(log, processor, ex, scans, gap_factors, imu_topic)
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
     with staged_run_dir(out) as staging:
@@ -732,14 +731,6 @@ class Extracted:
     scans: tuple[FloatArray, FloatArray]
     gap_factors: FloatArray | None = None
     imu_topic: str | None = None
-
-
-@dataclass(frozen=True)
-class Visuals:
-    """What to draw after the run: the PLY maps and their figure, a rerun recording."""
-
-    map: bool = False
-    rerun: Path | None = None
 
 
 def finish_run(
@@ -790,6 +781,8 @@ def finish_run(
     anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
     odometry_only = unmeasured(scans[0], correction.poses, anchors, used, matched.split)
     timings["write"] = time.perf_counter() - t0
+    # Maps rendered, the recording's worker started: it writes while the figures are drawn.
+    pending = start_visuals(processor, scans, correction.poses, ex.landmarks, matched, visuals)
     if plots:
         t0 = time.perf_counter()
         kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
@@ -807,21 +800,8 @@ def finish_run(
         report["sequential"]["odometry_scale"] = scale.passes
     report.update(report_head)
     (out / "report.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
-    if visuals.map or visuals.rerun is not None:
-        from decod_rs.visuals import write_visuals
-
-        summary.timings_s.update(
-            write_visuals(
-                out,
-                processor,
-                scans,
-                correction.poses,
-                ex.landmarks,
-                matched,
-                map=visuals.map,
-                rerun=visuals.rerun,
-            )
-        )
+    if pending is not None:
+        summary.timings_s.update(finish_visuals(out, pending))
     return summary
 
 

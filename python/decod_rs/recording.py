@@ -19,8 +19,12 @@ Entities (in the corrected world frame unless named ``odometry``; static or at a
   descriptors of the best accepted pair (rows: axial bins, +z up; columns: arclength from
   the gravity direction; grey: unobserved).
 
-rerun-sdk is optional (``pip install 'decod-rs[rerun]'``) and imported only here, only when
-a recording is asked for.
+rerun-sdk is optional (``pip install 'decod-rs[rerun]'``) and imported only when a recording
+is asked for. ``decod run`` hands the run's arrays (an ``.npz``, read without pickle) to a
+worker process (:class:`RecordingJob`), which imports the SDK and writes the file on the other
+core while the run draws its figures; with ``--no-plots`` there is nothing to overlap, and the
+recording is written in the run's own process (the SDK imported in the background during the
+extraction). ``python -m decod_rs.recording DATA.npz OUT.rrd`` is that worker.
 """
 
 from __future__ import annotations
@@ -29,7 +33,14 @@ import contextlib
 import functools
 import importlib
 import importlib.util
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
 import threading
+import time
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,9 +58,12 @@ FloatArray = NDArray[np.float64]
 __all__ = [
     "RERUN_MISSING",
     "RecordingInput",
+    "RecordingJob",
     "import_rerun_in_background",
+    "recording_data",
     "require_rerun",
     "write_recording",
+    "write_recording_data",
 ]
 
 RERUN_MISSING = (
@@ -71,6 +85,10 @@ RING_POINTS = 48
 CLOUD_POINTS = 1500
 
 
+#: Version of the arrays a worker reads (:func:`recording_data`).
+DATA_VERSION = 1
+
+
 def require_rerun() -> None:
     """Raise ImportError with ``RERUN_MISSING`` (what to install) unless the rerun SDK is
     installed: checked before any work is done, without importing it."""
@@ -82,22 +100,7 @@ def require_rerun() -> None:
         raise ImportError(RERUN_MISSING)
 
 
-def import_rerun_in_background() -> None:
-    """Start importing the rerun SDK on a background thread. Started once the run is
-    configured, where the extraction (Rust, without the GIL) leaves the interpreter free, its
-    ~0.4 s of CPU overlaps the stream; started before the configuration, its imports took the
-    GIL from the corridor probe and made that stage 0.25-0.3 s longer (hume, 16 beams)."""
-    threading.Thread(target=_import_quietly, name="import-rerun", daemon=True).start()
-
-
-def _import_quietly() -> None:
-    # A failure here is reported by the import in write_recording, on the run's thread.
-    with contextlib.suppress(Exception):
-        importlib.import_module("rerun")
-
-
 def _rerun() -> ModuleType:
-    """The ``rerun`` module (joins the background import if one is under way)."""
     try:
         return importlib.import_module("rerun")
     except ImportError as exc:
@@ -125,21 +128,164 @@ class RecordingInput:
     reasons: Sequence[str]
 
 
+Arrays = dict[str, NDArray[Any]]
+
+
+def recording_data(run: RecordingInput) -> Arrays:
+    """``run`` as plain arrays (numbers and strings, no objects: an ``.npz`` of them loads
+    without pickle): what :func:`write_recording_data` draws."""
+    f64 = functools.partial(np.asarray, dtype=np.float64)
+    lms, results = run.landmarks, run.results
+    data: Arrays = {
+        "version": np.array(DATA_VERSION),
+        "scan_stamps": f64(run.scan_stamps),
+        "odometry": f64(run.odometry),
+        "corrected": f64(run.corrected),
+        "split_stamp": np.array(np.nan if run.split_stamp is None else run.split_stamp),
+        "anchor_stamps": f64(run.anchor_stamps),
+        "submap_points": np.asarray(run.submap_points, dtype=np.float32).reshape(-1, 3),
+        "submap_index": np.asarray(run.submap_index, dtype=np.uint32),
+        "lm_stamp": f64([lm.submap_stamp for lm in lms]),
+        "lm_origin": f64([lm.origin for lm in lms]).reshape(-1, 3),
+        "lm_axis": f64([lm.axis for lm in lms]).reshape(-1, 3),
+        "lm_radius": f64([lm.radius_m for lm in lms]),
+        "query_stamp": f64([r.query_stamp for r in results]),
+        "query_origin": f64([r.query_origin for r in results]).reshape(-1, 3),
+        "found": np.array([r.candidate_index is not None for r in results], dtype=bool),
+        "keep": np.array(run.keep, dtype=bool).reshape(-1),
+        "reason": np.array(list(run.reasons), dtype=str).reshape(-1),
+    }
+    for name in ("candidate_stamp", "inliers", "score", "chance", "heading_deg"):
+        data[name] = f64(
+            [getattr(r, name) if r.candidate_index is not None else np.nan for r in results]
+        )
+    data["candidate_origin"] = f64(
+        [r.candidate_origin if r.candidate_index is not None else (np.nan,) * 3 for r in results]
+    ).reshape(-1, 3)
+    for name, cloud in run.maps.items():
+        data[f"map_{name}_points"] = f64(cloud.points).reshape(-1, 3)
+        data[f"map_{name}_pass"] = np.asarray(cloud.pass_, dtype=np.uint8)
+    data.update(_descriptor_pairs(run))
+    return data
+
+
+def _descriptor_pairs(run: RecordingInput) -> Arrays:
+    """The descriptors (and masks) of the best accepted pair of every query stamp that has
+    one: ``pair_stamp`` (P,), ``pair_{query,candidate}_{descriptor,mask}`` (P, rows, cols)."""
+    by_key = {(lm.submap_stamp, tuple(np.round(lm.origin, 6))): lm for lm in run.landmarks}
+    best: dict[float, QueryResult] = {}
+    for r, ok in zip(run.results, run.keep, strict=True):
+        if ok and (r.query_stamp not in best or r.score > best[r.query_stamp].score):
+            best[r.query_stamp] = r
+    stamps, images = [], []
+    for stamp, r in sorted(best.items()):
+        q = by_key.get((r.query_stamp, tuple(np.round(r.query_origin, 6))))
+        d = by_key.get((r.candidate_stamp, tuple(np.round(r.candidate_origin, 6))))
+        if q is None or d is None:
+            continue
+        stamps.append(stamp)
+        images.append(
+            [np.asarray(lm.descriptor, dtype=np.float64) for lm in (q, d)]
+            + [np.asarray(lm.mask, dtype=bool) for lm in (q, d)]
+        )
+    out: Arrays = {"pair_stamp": np.asarray(stamps, dtype=np.float64)}
+    names = ("query_descriptor", "candidate_descriptor", "query_mask", "candidate_mask")
+    for k, name in enumerate(names):
+        dtype = bool if name.endswith("mask") else np.float64
+        out[f"pair_{name}"] = (
+            np.stack([im[k] for im in images]) if images else np.zeros((0, 0, 0), dtype=dtype)
+        )
+    return out
+
+
 def write_recording(path: str | Path, run: RecordingInput) -> dict[str, Any]:
-    """Write ``run`` as a rerun recording (``.rrd``, opened by ``rerun FILE``); returns what
-    it holds (entity counts) for the report."""
+    """Write ``run`` as a rerun recording (``.rrd``, opened by ``rerun FILE``) in this
+    process; returns what it holds (entity counts) for the report."""
+    return write_recording_data(path, recording_data(run))
+
+
+def write_recording_data(path: str | Path, data: Arrays) -> dict[str, Any]:
+    """:func:`write_recording` from :func:`recording_data`'s arrays."""
+    version = int(data["version"]) if "version" in data else None
+    if version != DATA_VERSION:
+        raise ValueError(f"recording data version {version}, this decod reads {DATA_VERSION}")
     rr = _rerun()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream("decod")
     rec.save(str(out))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    _log_static(rr, rec, run)
-    submaps = _log_submaps(rr, rec, run)
-    queries, pairs = _log_queries(rr, rec, run)
+    _log_static(rr, rec, data)
+    submaps = _log_submaps(rr, rec, data)
+    queries = _log_queries(rr, rec, data)
+    pairs = _log_descriptors(rr, rec, data)
     rec.flush()
     rec.disconnect()
     return {"file": str(out), "submaps": submaps, "queries": queries, "descriptor_pairs": pairs}
+
+
+def import_rerun_in_background() -> None:
+    """Start importing the rerun SDK on a background thread, for a recording written in this
+    process: started once the run is configured, its ~0.4 s of CPU overlaps the extraction
+    (Rust, without the GIL); started before, it took the GIL from the corridor probe's Python
+    (configure 0.44 -> 0.16 s on the hume run with 16 beams)."""
+    threading.Thread(target=_import_quietly, name="import-rerun", daemon=True).start()
+
+
+def _import_quietly() -> None:
+    # A failure here is reported by the import in write_recording, on the run's thread.
+    with contextlib.suppress(Exception):
+        importlib.import_module("rerun")
+
+
+class RecordingJob:
+    """A recording under way: written by a worker process (``python -m decod_rs.recording``,
+    ``worker=True``) while this one goes on, or in this process when :meth:`wait` is called.
+    :meth:`wait` returns what :func:`write_recording` does, or raises (a worker's failure:
+    RuntimeError with its own message).
+
+    A worker costs a fresh interpreter and its imports (numpy, the SDK: ~1.1 s of CPU against
+    ~0.4 s in a process that has numpy and matplotlib), worth it only when the caller has
+    other work for the other core meanwhile: ``decod run`` draws its figures."""
+
+    def __init__(self, path: str | Path, run: RecordingInput, *, worker: bool = True) -> None:
+        self.path = Path(path)
+        self._run: RecordingInput | None = None
+        self._proc: subprocess.Popen[str] | None = None
+        if not worker:
+            self._run = run
+            return
+        self._tmp = Path(tempfile.mkdtemp(prefix="decod-recording-"))
+        # Removed by wait(), or when the job is dropped (a run that failed meanwhile).
+        self._cleanup = weakref.finalize(self, shutil.rmtree, self._tmp, True)
+        data = self._tmp / "recording.npz"
+        arrays: dict[str, Any] = recording_data(run)
+        np.savez(data, allow_pickle=False, **arrays)
+        self._started = time.perf_counter()
+        cmd = [sys.executable, "-m", "decod_rs.recording", str(data), str(self.path)]
+        self._proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+
+    def wait(self) -> dict[str, Any]:
+        if self._run is not None:
+            return write_recording(self.path, self._run)
+        proc = self._proc
+        if proc is None:  # only a job without a run has no worker: never
+            raise RuntimeError(f"{self.path}: no recording under way")
+        try:
+            stdout, stderr = proc.communicate()
+        finally:
+            self._cleanup()
+        if proc.returncode != 0:
+            detail = stderr.strip().splitlines()[-1] if stderr.strip() else "no message"
+            raise RuntimeError(
+                f"{self.path}: the recording was not written "
+                f"(worker exit {proc.returncode}): {detail}"
+            )
+        recorded: dict[str, Any] = json.loads(stdout)
+        recorded["worker_s"] = time.perf_counter() - self._started
+        return recorded
 
 
 def _packed(rgb: NDArray[np.uint8]) -> NDArray[np.uint32]:
@@ -148,22 +294,21 @@ def _packed(rgb: NDArray[np.uint8]) -> NDArray[np.uint32]:
     return np.asarray((c[:, 0] << 24) | (c[:, 1] << 16) | (c[:, 2] << 8) | 0xFF, dtype=np.uint32)
 
 
-def _log_static(rr: Any, rec: Any, run: RecordingInput) -> None:
-    for name, poses, rgb in (
-        ("odometry", run.odometry, ODOMETRY_RGB),
-        ("corrected", run.corrected, CORRECTED_RGB),
-    ):
+def _log_static(rr: Any, rec: Any, data: Arrays) -> None:
+    for name, rgb in (("odometry", ODOMETRY_RGB), ("corrected", CORRECTED_RGB)):
         rec.log(
             f"world/{name}/trajectory",
-            rr.LineStrips3D([poses[:, :3, 3]], colors=[rgb], labels=[name]),
+            rr.LineStrips3D([data[name][:, :3, 3]], colors=[rgb], labels=[name]),
             static=True,
         )
-        cloud = run.maps.get(name)
-        if cloud is not None:
-            colours = _packed(PASS_COLOURS[np.minimum(cloud.pass_, len(PASS_COLOURS) - 1)])
+        if f"map_{name}_points" in data:
+            passes = np.minimum(data[f"map_{name}_pass"], len(PASS_COLOURS) - 1)
             rec.log(
                 f"world/{name}/map",
-                rr.Points3D(cloud.points.astype(np.float32), colors=colours),
+                rr.Points3D(
+                    data[f"map_{name}_points"].astype(np.float32),
+                    colors=_packed(PASS_COLOURS[passes]),
+                ),
                 static=True,
             )
 
@@ -185,140 +330,115 @@ def _rings(origins: FloatArray, axes: FloatArray, radii: FloatArray) -> FloatArr
     return np.asarray(origins[:, None, :] + radii[:, None, None] * circle)
 
 
-def _log_anchors(rr: Any, rec: Any, run: RecordingInput, poses: dict[str, FloatArray]) -> None:
+def _anchor_poses(data: Arrays, name: str) -> FloatArray:
+    return anchor_poses(data["anchor_stamps"], data["scan_stamps"], data[name])
+
+
+def _log_anchors(rr: Any, rec: Any, data: Arrays) -> None:
     """The current anchor of each trajectory, one row per anchor stamp, in one call each."""
-    times = [rr.TimeColumn(TIMELINE, timestamp=run.anchor_stamps)]
+    times = [rr.TimeColumn(TIMELINE, timestamp=data["anchor_stamps"])]
     for name, rgb in (("odometry", ODOMETRY_RGB), ("corrected", CORRECTED_RGB)):
-        p = poses[name]
-        k = p.shape[0]
+        p = _anchor_poses(data, name)
         columns = rr.Arrows3D.columns(
             origins=p[:, :3, 3],
             vectors=0.3 * p[:, :3, 0],
-            colors=np.full(k, _packed(np.array([rgb], dtype=np.uint8))[0], dtype=np.uint32),
+            colors=np.full(p.shape[0], _packed(np.array([rgb]))[0], dtype=np.uint32),
         )
         rec.send_columns(f"world/{name}/anchor", indexes=times, columns=columns)
 
 
-def _log_submaps(rr: Any, rec: Any, run: RecordingInput) -> int:
+def _log_submaps(rr: Any, rec: Any, data: Arrays) -> int:
     """Each submap at its anchor stamp: pose, cloud (at most ``CLOUD_POINTS``), boundaries;
     the current anchors."""
-    poses = {
-        "odometry": anchor_poses(run.anchor_stamps, run.scan_stamps, run.odometry),
-        "corrected": anchor_poses(run.anchor_stamps, run.scan_stamps, run.corrected),
-    }
-    _log_anchors(rr, rec, run, poses)
-    passes = pass_of(run.anchor_stamps, run.split_stamp)
+    anchors = data["anchor_stamps"]
+    poses = _anchor_poses(data, "corrected")
+    _log_anchors(rr, rec, data)
+    split = float(data["split_stamp"])
+    passes = pass_of(anchors, None if np.isnan(split) else split)
     colours = _packed(PASS_COLOURS)
-    bounds = np.searchsorted(run.submap_index, np.arange(run.anchor_stamps.size + 1))
-    by_stamp: dict[float, list[Landmark]] = {}
-    for lm in run.landmarks:
-        by_stamp.setdefault(lm.submap_stamp, []).append(lm)
-    for k, stamp in enumerate(run.anchor_stamps):
+    index, points = data["submap_index"], data["submap_points"]
+    bounds = np.searchsorted(index, np.arange(anchors.size + 1))
+    order = np.argsort(data["lm_stamp"], kind="stable")
+    lm_stamps = data["lm_stamp"][order]
+    for k, stamp in enumerate(anchors):
         _set_time(rec, stamp)
         base = f"world/corrected/submaps/{k:05d}"
-        pose = poses["corrected"][k]
-        rec.log(base, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
-        cloud = run.submap_points[bounds[k] : bounds[k + 1]]
+        rec.log(base, rr.Transform3D(translation=poses[k][:3, 3], mat3x3=poses[k][:3, :3]))
+        cloud = points[bounds[k] : bounds[k + 1]]
         if cloud.shape[0]:
             stride = -(-cloud.shape[0] // CLOUD_POINTS)
             rec.log(f"{base}/cloud", rr.Points3D(cloud[::stride], colors=colours[passes[k]]))
-        lms = by_stamp.get(float(stamp), [])
-        if lms:
-            origins = np.array([lm.origin for lm in lms], dtype=np.float64)
-            axes = np.array([lm.axis for lm in lms], dtype=np.float64)
-            radii = np.array([lm.radius_m for lm in lms], dtype=np.float64)
+        lo = np.searchsorted(lm_stamps, stamp, side="left")
+        hi = np.searchsorted(lm_stamps, stamp, side="right")
+        if hi > lo:
+            mine = order[lo:hi]
+            origins, axes = data["lm_origin"][mine], data["lm_axis"][mine]
+            radii = data["lm_radius"][mine]
             labels = [f"boundary r={r:.3f} m" for r in radii]
             rec.log(
                 f"{base}/boundaries",
                 rr.LineStrips3D(list(_rings(origins, axes, radii)), labels=labels),
             )
             rec.log(f"{base}/axes", rr.Arrows3D(origins=origins, vectors=axes * radii[:, None]))
-    return int(run.anchor_stamps.size)
+    return int(anchors.size)
 
 
-def _world_points(run: RecordingInput, stamps: FloatArray, local: FloatArray) -> FloatArray:
+def _world_points(data: Arrays, stamps: FloatArray, local: FloatArray) -> FloatArray:
     """Points (n, 3) of submaps' anchor frames (submaps at ``stamps`` (n,)) in the corrected
     world."""
-    poses = anchor_poses(stamps, run.scan_stamps, run.corrected)
+    poses = anchor_poses(stamps, data["scan_stamps"], data["corrected"])
     return np.asarray(np.einsum("nij,nj->ni", poses[:, :3, :3], local) + poses[:, :3, 3])
 
 
-def _verdict(r: QueryResult, ok: bool, reason: str) -> str:
-    if r.candidate_index is None:
-        return f"query {r.query_stamp:.2f} s: no candidate ({reason or 'none eligible'})"
+def _verdict(data: Arrays, i: int) -> str:
+    q, ok, reason = float(data["query_stamp"][i]), bool(data["keep"][i]), str(data["reason"][i])
+    if not data["found"][i]:
+        return f"query {q:.2f} s: no candidate ({reason or 'none eligible'})"
     verdict = "ACCEPTED" if ok else f"rejected: {reason or 'unknown'}"
     return (
-        f"query {r.query_stamp:.2f} s -> {r.candidate_stamp:.2f} s: K={r.inliers}, "
-        f"S={r.score:.2f}, chance={r.chance:.2g}, heading {r.heading_deg:.0f} deg, {verdict}"
+        f"query {q:.2f} s -> {data['candidate_stamp'][i]:.2f} s: K={data['inliers'][i]:.0f}, "
+        f"S={data['score'][i]:.2f}, chance={data['chance'][i]:.2g}, "
+        f"heading {data['heading_deg'][i]:.0f} deg, {verdict}"
     )
 
 
-def _log_queries(rr: Any, rec: Any, run: RecordingInput) -> tuple[int, int]:
-    """Each query's Top-1 and verdict at the query's stamp (the texts and the lines in one
-    call each, rows at the query stamps); descriptors of accepted pairs."""
-    by_key = {(lm.submap_stamp, tuple(np.round(lm.origin, 6))): lm for lm in run.landmarks}
-    groups: dict[float, list[int]] = {}
-    for i, r in enumerate(run.results):
-        groups.setdefault(r.query_stamp, []).append(i)
-    texts: tuple[list[float], list[str], list[str]] = ([], [], [])
-    lines: tuple[list[float], list[int], list[FloatArray], list[int], list[str]] = (
-        [],
-        [],
-        [],
-        [],
-        [],
-    )
-    found = [i for i, r in enumerate(run.results) if r.candidate_index is not None]
-    hits = [run.results[i] for i in found]
-    starts = _world_points(
-        run,
-        np.array([r.query_stamp for r in hits], dtype=np.float64),
-        np.array([r.query_origin for r in hits], dtype=np.float64).reshape(-1, 3),
-    )
-    stops = _world_points(
-        run,
-        np.array([r.candidate_stamp for r in hits], dtype=np.float64),
-        np.array([r.candidate_origin for r in hits], dtype=np.float64).reshape(-1, 3),
-    )
-    ends = {i: (a, b) for i, a, b in zip(found, starts, stops, strict=True)}
-    pairs = 0
-    for stamp, idx in sorted(groups.items()):
-        strips = 0
-        for i in idx:
-            r, ok, why = run.results[i], bool(run.keep[i]), run.reasons[i]
-            texts[0].append(stamp)
-            texts[1].append(_verdict(r, ok, why))
-            texts[2].append("INFO" if ok else "WARN")
-            if r.candidate_index is None:
-                continue
-            lines[2].append(np.stack(ends[i]))
-            lines[3].append(int(_packed(np.array([ACCEPTED_RGB if ok else REJECTED_RGB]))[0]))
-            lines[4].append(f"K={r.inliers} S={r.score:.2f} " + ("accepted" if ok else why))
-            strips += 1
-        if strips:
-            lines[0].append(stamp)
-            lines[1].append(strips)
-        accepted = [run.results[i] for i in idx if run.keep[i]]
-        if accepted:
-            _set_time(rec, stamp)
-            if _log_descriptors(rr, rec, max(accepted, key=lambda r: r.score), by_key):
-                pairs += 1
-    if texts[0]:
+def _log_queries(rr: Any, rec: Any, data: Arrays) -> int:
+    """Each query's Top-1 and verdict at the query's stamp: the texts and the lines in one
+    call each, rows at the query stamps."""
+    stamps = data["query_stamp"]
+    order = np.argsort(stamps, kind="stable")
+    levels = np.where(data["keep"], "INFO", "WARN")
+    if order.size:
         rec.send_columns(
             "log/queries",
-            indexes=[rr.TimeColumn(TIMELINE, timestamp=texts[0])],
-            columns=rr.TextLog.columns(text=texts[1], level=texts[2]),
+            indexes=[rr.TimeColumn(TIMELINE, timestamp=stamps[order])],
+            columns=rr.TextLog.columns(
+                text=[_verdict(data, int(i)) for i in order], level=levels[order].tolist()
+            ),
         )
-    if lines[0]:
+    hits = order[data["found"][order]]
+    if hits.size:
+        starts = _world_points(data, stamps[hits], data["query_origin"][hits])
+        stops = _world_points(data, data["candidate_stamp"][hits], data["candidate_origin"][hits])
+        ok = data["keep"][hits]
+        colours = np.where(
+            ok, _packed(np.array([ACCEPTED_RGB]))[0], _packed(np.array([REJECTED_RGB]))[0]
+        ).astype(np.uint32)
+        labels = [
+            f"K={data['inliers'][i]:.0f} S={data['score'][i]:.2f} "
+            + ("accepted" if data["keep"][i] else str(data["reason"][i]))
+            for i in hits
+        ]
+        times, counts = np.unique(stamps[hits], return_counts=True)
         columns = rr.LineStrips3D.columns(
-            strips=lines[2], colors=np.asarray(lines[3], dtype=np.uint32), labels=lines[4]
+            strips=list(np.stack([starts, stops], axis=1)), colors=colours, labels=labels
         )
         rec.send_columns(
             "world/queries",
-            indexes=[rr.TimeColumn(TIMELINE, timestamp=lines[0])],
-            columns=columns.partition(lines[1]),
+            indexes=[rr.TimeColumn(TIMELINE, timestamp=times)],
+            columns=columns.partition(counts.tolist()),
         )
-    return len(run.results), pairs
+    return int(stamps.size)
 
 
 @functools.cache
@@ -344,14 +464,30 @@ def _descriptor_rgb(values: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDA
     return np.ascontiguousarray(rgb[::-1])
 
 
-def _log_descriptors(
-    rr: Any, rec: Any, r: QueryResult, by_key: dict[tuple[float, tuple[float, ...]], Landmark]
-) -> bool:
-    q = by_key.get((r.query_stamp, tuple(np.round(r.query_origin, 6))))
-    d = by_key.get((r.candidate_stamp, tuple(np.round(r.candidate_origin, 6))))
-    if q is None or d is None:
-        return False
-    for name, lm in (("query", q), ("candidate", d)):
-        image = _descriptor_rgb(np.asarray(lm.descriptor), np.asarray(lm.mask, dtype=bool))
-        rec.log(f"descriptors/{name}", rr.Image(image, magnification_filter="Nearest"))
-    return True
+def _log_descriptors(rr: Any, rec: Any, data: Arrays) -> int:
+    """The descriptors of each query stamp's best accepted pair, at that stamp."""
+    for k, stamp in enumerate(data["pair_stamp"]):
+        _set_time(rec, stamp)
+        for name in ("query", "candidate"):
+            image = _descriptor_rgb(
+                data[f"pair_{name}_descriptor"][k], data[f"pair_{name}_mask"][k]
+            )
+            rec.log(f"descriptors/{name}", rr.Image(image, magnification_filter="Nearest"))
+    return int(data["pair_stamp"].size)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The worker: ``python -m decod_rs.recording DATA.npz OUT.rrd``; prints what the
+    recording holds as JSON."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 2:
+        print("usage: python -m decod_rs.recording DATA.npz OUT.rrd", file=sys.stderr)
+        return 2
+    with np.load(args[0], allow_pickle=False) as npz:
+        data = {name: npz[name] for name in npz.files}
+    print(json.dumps(write_recording_data(args[1], data)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -21,6 +21,7 @@ import json
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -31,10 +32,18 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.map_quality import Consistency, map_consistency, outbound_path
 from decod_rs.maps import PASS_NAMES, MapCloud, anchor_poses, render_map, write_map_ply
+from decod_rs.recording import RecordingInput, RecordingJob
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["MAP_FILES", "write_visuals"]
+__all__ = [
+    "MAP_FILES",
+    "PendingVisuals",
+    "Visuals",
+    "finish_visuals",
+    "start_visuals",
+    "write_visuals",
+]
 
 MAP_FILES = {"corrected": "map_corrected.ply", "odometry": "map_odometry.ply"}
 CONSISTENCY_PNG = "map_consistency.png"
@@ -51,6 +60,41 @@ class Matched(Protocol):
     split: float | None
 
 
+@dataclass(frozen=True)
+class Visuals:
+    """What to draw after the run: the PLY maps and their figure, a rerun recording."""
+
+    map: bool = False
+    rerun: Path | None = None
+    #: Write the recording in a worker process, while the caller draws its figures
+    #: (:class:`decod_rs.recording.RecordingJob`); otherwise in this process.
+    worker: bool = False
+
+    def prepare(self) -> None:
+        """Once the run is configured: a recording written in this process starts importing
+        the rerun SDK in the background, to overlap the extraction."""
+        if self.rerun is not None and not self.worker:
+            from decod_rs.recording import import_rerun_in_background
+
+            import_rerun_in_background()
+
+
+@dataclass
+class PendingVisuals:
+    """The maps rendered and the recording under way (:func:`start_visuals`), for
+    :func:`finish_visuals` to complete."""
+
+    processor: _core.LogProcessor
+    scans: tuple[FloatArray, FloatArray]
+    corrected: FloatArray
+    split: float | None
+    map: bool
+    clouds: dict[str, MapCloud]
+    same: bool
+    recording: RecordingJob | None
+    timings: dict[str, float] = field(default_factory=dict)
+
+
 def write_visuals(
     out: Path,
     processor: _core.LogProcessor,
@@ -64,17 +108,30 @@ def write_visuals(
 ) -> dict[str, float]:
     """Maps, figure and recording of a finished run in ``out`` (``scans``: stamps (N,) and
     odometry (N, 4, 4); ``corrected`` (N, 4, 4)); updates ``report.json``; returns the time
-    per stage in seconds."""
-    stamps, odometry = scans
-    trajectories = {"odometry": odometry, "corrected": corrected}
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
+    per stage in seconds. :func:`start_visuals` then :func:`finish_visuals`."""
+    asked = Visuals(map=map, rerun=None if rerun is None else Path(rerun))
+    pending = start_visuals(processor, scans, corrected, landmarks, matched, asked)
+    return {} if pending is None else finish_visuals(out, pending)
 
-    # The renders one after the other (each is parallel in Rust and holds the processor's
-    # lock), then the PLY files and the figures of both maps at once (numpy's large-array
-    # work releases the GIL). A trajectory no loop moved (--no-loops, or no loop accepted:
-    # the solver returns the odometry to within 1e-14) places the map where the odometry
-    # does, to far below the PLY's float precision: one render and one figure serve both.
+
+def start_visuals(
+    processor: _core.LogProcessor,
+    scans: tuple[FloatArray, FloatArray],
+    corrected: FloatArray,
+    landmarks: Sequence[Landmark],
+    matched: Matched,
+    asked: Visuals,
+) -> PendingVisuals | None:
+    """Render the maps and start the recording (``asked.rerun``: the ``.rrd`` path; with
+    ``asked.worker`` a worker process writes it while the caller goes on: ``decod run`` draws
+    its figures); None when neither a map nor a recording is asked for."""
+    if not (asked.map or asked.rerun is not None):
+        return None
+    stamps, odometry = scans
+    t0 = time.perf_counter()
+    # A trajectory no loop moved (--no-loops, or no loop accepted: the solver returns the
+    # odometry to within 1e-14) places the map where the odometry does, to far below the
+    # PLY's float precision: one render and one figure serve both.
     same = odometry.shape == corrected.shape and bool(
         np.allclose(odometry, corrected, rtol=0.0, atol=SAME_POSE_ATOL)
     )
@@ -82,18 +139,42 @@ def write_visuals(
     clouds["corrected"] = (
         clouds["odometry"] if same else render_map(processor, stamps, corrected, matched.split)
     )
-    section = _map_section(processor, clouds)
-    if map:
-        anchors = np.asarray(processor.map_submap_stamps(), dtype=np.float64)
-        voxel = float(processor.map_voxel_m or 0.0)  # the map is kept: never None here
+    timings = {"map": time.perf_counter() - t0}
+    job = None
+    if asked.rerun is not None:
+        t0 = time.perf_counter()
+        job = _start_recording(
+            (asked.rerun, asked.worker), processor, scans, corrected, clouds, landmarks, matched
+        )
+        timings["rerun"] = time.perf_counter() - t0
+    return PendingVisuals(
+        processor, scans, corrected, matched.split, asked.map, clouds, same, job, timings
+    )
+
+
+def finish_visuals(out: Path, pending: PendingVisuals) -> dict[str, float]:
+    """The map files and figure (when asked), the recording waited for; ``report.json`` in
+    ``out`` updated; returns the time per stage in seconds (``rerun``: this process's share,
+    starting the worker and waiting for it)."""
+    p = pending
+    stamps, odometry = p.scans
+    trajectories = {"odometry": odometry, "corrected": p.corrected}
+    timings = dict(p.timings)
+    t0 = time.perf_counter()
+    section = _map_section(p.processor, p.clouds)
+    if p.map:
+        anchors = np.asarray(p.processor.map_submap_stamps(), dtype=np.float64)
+        voxel = float(p.processor.map_voxel_m or 0.0)  # the map is kept: never None here
 
         def finish(name: str) -> Consistency | None:
-            write_map_ply(out / MAP_FILES[name], clouds[name], float(stamps[0]), name)
-            if same and name == "corrected":
+            write_map_ply(out / MAP_FILES[name], p.clouds[name], float(stamps[0]), name)
+            if p.same and name == "corrected":
                 return None
             poses = trajectories[name]
-            return _consistency(anchors, clouds[name], stamps, poses, matched.split, voxel)
+            return _consistency(anchors, p.clouds[name], stamps, poses, p.split, voxel)
 
+        # The PLY files and the figures of both maps at once (numpy's large-array work
+        # releases the GIL).
         with ThreadPoolExecutor(max_workers=2) as pool:
             done = dict(zip(trajectories, pool.map(finish, trajectories), strict=True))
         figures: dict[str, Consistency] = {}
@@ -107,12 +188,12 @@ def write_visuals(
 
         plot_map_consistency(out / CONSISTENCY_PNG, figures)
         section["files"]["consistency"] = CONSISTENCY_PNG
-    timings["map"] = time.perf_counter() - t0
+    timings["map"] += time.perf_counter() - t0
     recorded = None
-    if rerun is not None:
+    if p.recording is not None:
         t0 = time.perf_counter()
-        recorded = _record(Path(rerun), processor, scans, corrected, clouds, landmarks, matched)
-        timings["rerun"] = time.perf_counter() - t0
+        recorded = p.recording.wait()
+        timings["rerun"] += time.perf_counter() - t0
     _update_report(out / "report.json", section, recorded, timings)
     return timings
 
@@ -162,20 +243,19 @@ def _consistency_section(figures: dict[str, Consistency]) -> dict[str, Any]:
     return section
 
 
-def _record(
-    path: Path,
+def _start_recording(
+    file: tuple[Path, bool],
     processor: _core.LogProcessor,
     scans: tuple[FloatArray, FloatArray],
     corrected: FloatArray,
     clouds: dict[str, MapCloud],
     landmarks: Sequence[Landmark],
     matched: Matched,
-) -> dict[str, Any]:
-    from decod_rs.recording import RecordingInput, write_recording
-
+) -> RecordingJob:
+    """The recording's job: ``file`` is its path and whether a worker process writes it."""
     points, index = processor.map_points_by_submap()
-    return write_recording(
-        path,
+    return RecordingJob(
+        file[0],
         RecordingInput(
             scan_stamps=scans[0],
             odometry=scans[1],
@@ -190,6 +270,7 @@ def _record(
             keep=matched.keep,
             reasons=matched.reasons,
         ),
+        worker=file[1],
     )
 
 

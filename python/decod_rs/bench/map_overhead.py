@@ -11,12 +11,15 @@ this process and its threads (what other processes cannot take), best of ``--rep
 - the plain run (``run_log`` without map or recording, plots included);
 - the voxel map kept while streaming: the extraction stage with and without it, interleaved;
 - the stages after the run: ``write_visuals`` with ``map``, with ``rerun``, with both, on the
-  finished run's processor and trajectories;
+  finished run's processor and trajectories, the recording written in this process (as
+  ``decod run --no-plots`` does);
 - importing the rerun SDK (a fresh interpreter that has numpy and matplotlib already).
 
 Overhead = added CPU / plain run CPU; the wall seconds of the same parts (best of) beside
 them, and the load average. ``--end-to-end`` also times ``decod run`` in a fresh process,
-plain / ``--map`` / ``--rerun`` / both, interleaved (wall and CPU of the child).
+plain / ``--map`` / ``--rerun`` / both, interleaved (wall and CPU of the child and of the
+recording's worker process, which writes the ``.rrd`` while the figures are drawn): what a
+user waits for.
 
 Output: ``DIR/map_overhead.json`` and ``DIR/map_overhead.md``.
 """
@@ -135,22 +138,23 @@ def _best(work: Callable[[], object], repeats: int) -> tuple[float, float]:
 
 
 def _finished_run(log: Path, out: Path) -> tuple[dict[str, Any], Path]:
-    """A run with ``--map`` whose ``write_visuals`` arguments are kept for replays."""
-    import decod_rs.visuals as visuals
+    """A run with ``--map`` whose ``write_visuals`` arguments (those ``decod run`` gives
+    ``start_visuals``) are kept for replays."""
+    import decod_rs.pipeline as pipeline
 
     kept: dict[str, Any] = {}
-    original = visuals.write_visuals
+    original = pipeline.start_visuals
 
-    def keep(out_dir: Path, *args: Any, **kwargs: Any) -> dict[str, float]:
-        kept.update(out=out_dir, args=args)
-        return original(out_dir, *args, **kwargs)
+    def keep(*args: Any) -> Any:
+        kept.update(args=args[:-1])  # all but what was asked for (Visuals)
+        return original(*args)
 
     shutil.rmtree(out, ignore_errors=True)
-    visuals.write_visuals = keep  # type: ignore[assignment]
+    pipeline.start_visuals = keep  # type: ignore[assignment]
     try:
         run_log(log, out, imu_topic="/imu", progress=False, map=True)
     finally:
-        visuals.write_visuals = original  # type: ignore[assignment]
+        pipeline.start_visuals = original
     return kept, out
 
 
