@@ -159,7 +159,7 @@ fn merge_rows(rows: &mut Vec<SubmapVoxel>) {
 
 /// Stable sort of `rows` by voxel key `(x, y, z)`: a radix sort of the keys re-packed
 /// relative to their own range (a segment spans a few thousand voxels per axis), or, when the
-/// range needs more than 64 bits, a comparison sort.
+/// range needs 64 bits or more (a corrupt point kilometres away), a comparison sort.
 fn sort_by_voxel(rows: &mut Vec<SubmapVoxel>) {
     let (mut lo, mut hi) = ([i32::MAX; 3], [i32::MIN; 3]);
     for row in rows.iter() {
@@ -170,7 +170,8 @@ fn sort_by_voxel(rows: &mut Vec<SubmapVoxel>) {
     }
     let span = |a: usize| u64::from(hi[a].abs_diff(lo[a]));
     let bits: [u32; 3] = std::array::from_fn(|a| 64 - span(a).leading_zeros());
-    if rows.is_empty() || bits.iter().sum::<u32>() > u64::BITS {
+    // Below 64 bits in all, so that every shift below is by less than 64.
+    if rows.is_empty() || bits.iter().sum::<u32>() >= u64::BITS {
         rows.sort_by_key(|r| r.key);
         return;
     }
@@ -506,6 +507,32 @@ mod tests {
     fn seen(sensor: &Pose, world: [f64; 3]) -> [f32; 3] {
         let q = sensor.inverse() * Point3::from(world);
         [q.x as f32, q.y as f32, q.z as f32]
+    }
+
+    #[test]
+    fn voxels_far_apart_sort_like_their_keys() {
+        // Keys spanning the whole i32 range on two axes (a corrupt point far away; one x, so
+        // the packed key would need exactly 64 bits): the comparison sort; a narrow range:
+        // the radix sort. Both stable, both by (x, y, z).
+        for (spread, xs, n) in [(i32::MAX - 2, 1, 40), (300, 3, 400)] {
+            let mut rows: Vec<SubmapVoxel> = (0..n)
+                .map(|i: i32| SubmapVoxel {
+                    key: [
+                        (i % xs) * 7,
+                        (i * 7919 % 13 - 6) * (spread / 6),
+                        (i % 5 - 2) * (spread / 2),
+                    ],
+                    sum: [f64::from(i), 0.0, 0.0],
+                    count: 1,
+                    submap: i as u32,
+                })
+                .collect();
+            let mut expected = rows.clone();
+            expected.sort_by_key(|r| r.key);
+            sort_by_voxel(&mut rows);
+            let order = |v: &[SubmapVoxel]| v.iter().map(|r| r.submap).collect::<Vec<_>>();
+            assert_eq!(order(&rows), order(&expected));
+        }
     }
 
     #[test]
