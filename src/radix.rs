@@ -6,20 +6,99 @@
 /// Bits per digit: 2,048 buckets, whose counters (16 KB) stay in L1.
 const DIGIT_BITS: u32 = 11;
 
+/// From this many rows on (a 64-beam window: ~1.2 M rows, 19 MB, more than the L2 and with
+/// its scratch more than the L3 of our 2-core machines), the rows are first split by their
+/// highest digit and each bucket is then sorted on its own, in cache: one pass over the
+/// whole array instead of one per digit.
+const SPLIT_MIN_ROWS: usize = 1 << 16;
+
 /// Sorts `rows` by `key(row)`, which must be below `2^bits`, keeping the order of rows with
 /// equal keys; a pass whose digit is the same for every row is skipped. Every pass's counts come
-/// from one read of the rows.
+/// from one read of the rows. Large inputs are split by their highest digit first
+/// ([`SPLIT_MIN_ROWS`]); the order is the same either way (both are stable sorts by the key).
 pub(crate) fn sort_by_key<T: Copy>(rows: &mut Vec<T>, bits: u32, key: impl Fn(&T) -> u64) {
+    let bits = bits.min(u64::BITS);
+    let mut scratch = Scratch {
+        rows: Vec::new(),
+        counts: Vec::new(),
+    };
+    if rows.len() < SPLIT_MIN_ROWS || bits <= 2 * DIGIT_BITS {
+        sort_slice(rows, &mut scratch, bits, &key);
+        return;
+    }
+    // Split by the highest digit into `scratch` (stable), then sort each bucket by the rest.
+    let shift = bits - DIGIT_BITS;
+    let top = |row: &T| (key(row) >> shift) as usize & ((1 << DIGIT_BITS) - 1);
+    let mut counts = vec![0usize; 1 << DIGIT_BITS];
+    for row in rows.iter() {
+        counts[top(row)] += 1;
+    }
+    let mut starts = Vec::with_capacity(counts.len() + 1);
+    let mut start = 0;
+    for &count in &counts {
+        starts.push(start);
+        start += count;
+    }
+    starts.push(start);
+    let mut split = rows.clone();
+    let mut next = starts.clone();
+    for row in rows.iter() {
+        let d = top(row);
+        split[next[d]] = *row;
+        next[d] += 1;
+    }
+    for bucket in starts.windows(2) {
+        sort_slice(&mut split[bucket[0]..bucket[1]], &mut scratch, shift, &key);
+    }
+    *rows = split;
+}
+
+/// Buffers reused by the buckets of one sort.
+struct Scratch<T> {
+    rows: Vec<T>,
+    counts: Vec<usize>,
+}
+
+/// Below this many rows a bucket is sorted by insertion (stable), not by digits.
+const INSERTION_MAX_ROWS: usize = 32;
+
+/// Least-significant digit first over the low `bits` bits of the key (a handful of rows: by
+/// insertion), with reused buffers; the sorted rows end up in `rows`.
+fn sort_slice<T: Copy>(
+    rows: &mut [T],
+    scratch: &mut Scratch<T>,
+    bits: u32,
+    key: &impl Fn(&T) -> u64,
+) {
+    if rows.len() <= INSERTION_MAX_ROWS {
+        for i in 1..rows.len() {
+            let row = rows[i];
+            let k = key(&row);
+            let mut j = i;
+            while j > 0 && key(&rows[j - 1]) > k {
+                rows[j] = rows[j - 1];
+                j -= 1;
+            }
+            rows[j] = row;
+        }
+        return;
+    }
     let buckets = 1usize << DIGIT_BITS;
     let digit = |row: &T, shift: u32| ((key(row) >> shift) as usize) & (buckets - 1);
-    let passes = bits.min(u64::BITS).div_ceil(DIGIT_BITS) as usize;
-    let mut counts = vec![0usize; passes * buckets];
+    let passes = bits.div_ceil(DIGIT_BITS) as usize;
+    let counts = &mut scratch.counts;
+    counts.clear();
+    counts.resize(passes * buckets, 0);
     for row in rows.iter() {
         for (pass, slots) in counts.chunks_exact_mut(buckets).enumerate() {
             slots[digit(row, pass as u32 * DIGIT_BITS)] += 1;
         }
     }
-    let mut scratch: Vec<T> = Vec::new();
+    let scratch = &mut scratch.rows;
+    scratch.clear();
+    scratch.extend_from_slice(rows);
+    // Where the rows are between passes: `rows` or `scratch`.
+    let mut in_scratch = false;
     for (pass, offsets) in counts.chunks_exact_mut(buckets).enumerate() {
         if offsets.contains(&rows.len()) {
             continue;
@@ -31,15 +110,20 @@ pub(crate) fn sort_by_key<T: Copy>(rows: &mut Vec<T>, bits: u32, key: impl Fn(&T
             *slot = start;
             start += count;
         }
-        if scratch.len() != rows.len() {
-            scratch = rows.clone();
-        }
-        for row in rows.iter() {
+        let (src, dst): (&[T], &mut [T]) = if in_scratch {
+            (&scratch[..], &mut rows[..])
+        } else {
+            (&rows[..], &mut scratch[..])
+        };
+        for row in src.iter() {
             let d = digit(row, shift);
-            scratch[offsets[d]] = *row;
+            dst[offsets[d]] = *row;
             offsets[d] += 1;
         }
-        std::mem::swap(rows, &mut scratch);
+        in_scratch = !in_scratch;
+    }
+    if in_scratch {
+        rows.copy_from_slice(scratch);
     }
 }
 
@@ -63,6 +147,40 @@ mod tests {
         expected.sort_by_key(|r| r.0);
         sort_by_key(&mut rows, 26, |r| r.0);
         assert_eq!(rows, expected);
+    }
+
+    #[test]
+    fn large_inputs_split_by_the_highest_digit_sort_the_same() {
+        // Above SPLIT_MIN_ROWS: 30-bit keys (a 64-beam window's), 40 bits, and keys whose
+        // highest digit is constant (one bucket) or only in the top bits.
+        for (bits, mask) in [
+            (30u32, 0x3FFF_FFFFu64),
+            (40, 0xFF_FFFF_FFFF),
+            (30, 0xF_FFFF),
+        ] {
+            let mut state = 99u64;
+            let mut rows: Vec<(u64, usize)> = (0..SPLIT_MIN_ROWS + 12_345)
+                .map(|i| {
+                    state = state
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    // Few distinct keys per bucket as well as many: equal keys keep their order.
+                    let k = (state >> 17) & mask;
+                    (if i % 3 == 0 { k & !0xFF } else { k }, i)
+                })
+                .collect();
+            let mut expected = rows.clone();
+            expected.sort_by_key(|r| r.0);
+            sort_by_key(&mut rows, bits, |r| r.0);
+            assert_eq!(rows, expected, "{bits} bits");
+        }
+        let mut top_only: Vec<(u64, usize)> = (0..SPLIT_MIN_ROWS)
+            .map(|i| ((((i * 7919) % 2048) as u64) << 29, i))
+            .collect();
+        let mut expected = top_only.clone();
+        expected.sort_by_key(|r| r.0);
+        sort_by_key(&mut top_only, 40, |r| r.0);
+        assert_eq!(top_only, expected);
     }
 
     #[test]
