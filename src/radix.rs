@@ -1,7 +1,7 @@
-//! Stable least-significant-digit radix sort by an integer key: the voxel filters of
-//! [`crate::submap`] (a window's points) and [`crate::map`] (a map segment's voxels). Both
-//! replaced hash tables whose probes missed the cache on every row; the sort's passes read and
-//! write memory in order.
+//! Stable radix sort by an integer key (least-significant digit first; large inputs split by
+//! their most significant digit first): the voxel filters of [`crate::submap`] (a window's
+//! points) and [`crate::map`] (a map segment's voxels). Both replaced hash tables whose probes
+//! missed the cache on every row; the sort's passes read and write memory in order.
 
 /// Bits per digit: 2,048 buckets, whose counters (16 KB) stay in L1.
 const DIGIT_BITS: u32 = 11;
@@ -26,7 +26,7 @@ pub(crate) fn sort_by_key<T: Copy>(rows: &mut Vec<T>, bits: u32, key: impl Fn(&T
         sort_slice(rows, &mut scratch, bits, &key);
         return;
     }
-    // Split by the highest digit into `scratch` (stable), then sort each bucket by the rest.
+    // Split by the highest digit into `split` (stable), then sort each bucket by the rest.
     let shift = bits - DIGIT_BITS;
     let top = |row: &T| (key(row) >> shift) as usize & ((1 << DIGIT_BITS) - 1);
     let mut counts = vec![0usize; 1 << DIGIT_BITS];
