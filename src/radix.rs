@@ -33,24 +33,29 @@ pub(crate) fn sort_by_key<T: Copy>(rows: &mut Vec<T>, bits: u32, key: impl Fn(&T
     for row in rows.iter() {
         counts[top(row)] += 1;
     }
-    let mut starts = Vec::with_capacity(counts.len() + 1);
-    let mut start = 0;
-    for &count in &counts {
-        starts.push(start);
-        start += count;
-    }
-    starts.push(start);
+    to_offsets(&mut counts);
+    let starts = counts.clone();
     let mut split = rows.clone();
-    let mut next = starts.clone();
     for row in rows.iter() {
         let d = top(row);
-        split[next[d]] = *row;
-        next[d] += 1;
+        split[counts[d]] = *row;
+        counts[d] += 1;
     }
-    for bucket in starts.windows(2) {
-        sort_slice(&mut split[bucket[0]..bucket[1]], &mut scratch, shift, &key);
+    // Each bucket's end is now where the scatter stopped.
+    for (&start, &end) in starts.iter().zip(&counts) {
+        sort_slice(&mut split[start..end], &mut scratch, shift, &key);
     }
     *rows = split;
+}
+
+/// Bucket counts into the bucket's first slots (exclusive prefix sums), in place.
+fn to_offsets(slots: &mut [usize]) {
+    let mut start = 0;
+    for slot in slots.iter_mut() {
+        let count = *slot;
+        *slot = start;
+        start += count;
+    }
 }
 
 /// Buffers reused by the buckets of one sort.
@@ -95,8 +100,7 @@ fn sort_slice<T: Copy>(
         }
     }
     let scratch = &mut scratch.rows;
-    scratch.clear();
-    scratch.extend_from_slice(rows);
+    scratch.clear(); // filled by the first pass that moves rows
     // Where the rows are between passes: `rows` or `scratch`.
     let mut in_scratch = false;
     for (pass, offsets) in counts.chunks_exact_mut(buckets).enumerate() {
@@ -104,11 +108,9 @@ fn sort_slice<T: Copy>(
             continue;
         }
         let shift = pass as u32 * DIGIT_BITS;
-        let mut start = 0;
-        for slot in offsets.iter_mut() {
-            let count = *slot;
-            *slot = start;
-            start += count;
+        to_offsets(offsets);
+        if scratch.is_empty() {
+            scratch.extend_from_slice(rows);
         }
         let (src, dst): (&[T], &mut [T]) = if in_scratch {
             (&scratch[..], &mut rows[..])
