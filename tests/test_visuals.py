@@ -31,8 +31,10 @@ from decod_rs.maps import PASS_COLOURS, MapCloud, anchor_poses, render_map
 from decod_rs.pipeline import run_log
 from decod_rs.ply import write_ply
 from decod_rs.recording import (
+    CLOUD_POINTS,
     RecordingInput,
     RecordingJob,
+    _diverging_lut,
     recording_data,
     write_recording_data,
 )
@@ -297,6 +299,37 @@ def test_the_recording_worker_reads_data_not_objects(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="allow_pickle"):
         recording_main([str(tmp_path / "objects.npz"), str(tmp_path / "y.rrd")])
     assert not (tmp_path / "x.rrd").exists() and not (tmp_path / "y.rrd").exists()
+
+
+def test_descriptor_images_use_the_colours_of_the_png_figures() -> None:
+    """The worker's own blue-white-red scale (no matplotlib there) is matplotlib's RdBu_r,
+    used by descriptors_pair*.png, to within a byte's rounding."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["RdBu_r"]
+    reference = (cmap(np.arange(cmap.N))[:, :3] * 255).astype(np.int64)
+    assert np.abs(_diverging_lut().astype(np.int64) - reference).max() <= 1
+
+
+def test_the_worker_gets_each_submap_cloud_as_drawn() -> None:
+    """Clouds are thinned to at most CLOUD_POINTS per submap, evenly strided from each
+    submap's first point, before the handoff; small and empty submaps are kept whole."""
+    sizes = [0, 10, CLOUD_POINTS, CLOUD_POINTS + 1, 4 * CLOUD_POINTS + 3]
+    index = np.repeat(np.arange(len(sizes), dtype=np.uint32), sizes)
+    points = np.arange(3 * index.size, dtype=np.float32).reshape(-1, 3)
+    run = replace(
+        _empty_recording(),
+        anchor_stamps=np.arange(len(sizes), dtype=np.float64),
+        submap_points=points,
+        submap_index=index,
+    )
+    data = recording_data(run)
+    start = np.concatenate([[0], np.cumsum(sizes)])
+    for k, n in enumerate(sizes):
+        mine = data["submap_points"][data["submap_index"] == k]
+        stride = max(-(-n // CLOUD_POINTS), 1)
+        assert mine.shape[0] <= CLOUD_POINTS
+        np.testing.assert_array_equal(mine, points[start[k] : start[k + 1]][::stride])
 
 
 def test_a_missing_rerun_sdk_is_a_clear_error_before_any_work(

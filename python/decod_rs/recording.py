@@ -85,8 +85,16 @@ RING_POINTS = 48
 CLOUD_POINTS = 1500
 
 
-#: Version of the arrays a worker reads (:func:`recording_data`).
-DATA_VERSION = 1
+#: Version of the arrays a worker reads (:func:`recording_data`). 2: map points float32 (as
+#: the viewer gets them), submap clouds thinned to ``CLOUD_POINTS`` before the handoff.
+DATA_VERSION = 2
+#: The descriptor images' diverging colours, blue (-) to red (+): ColorBrewer's 11-class
+#: RdBu, reversed, as RGB bytes (the scale matplotlib's ``RdBu_r`` interpolates, used by
+#: ``descriptors_pair*.png``); interpolated here so the worker needs no matplotlib (its
+#: import was 0.3 s of a 2 s worker on the pe pipe with 64 beams).
+DIVERGING_ANCHORS = (
+    "053061 2166ac 4393c3 92c5de d1e5f0 f7f7f7 fddbc7 f4a582 d6604d b2182b 67001f"
+).split()
 
 
 def require_rerun() -> None:
@@ -143,8 +151,7 @@ def recording_data(run: RecordingInput) -> Arrays:
         "corrected": f64(run.corrected),
         "split_stamp": np.array(np.nan if run.split_stamp is None else run.split_stamp),
         "anchor_stamps": f64(run.anchor_stamps),
-        "submap_points": np.asarray(run.submap_points, dtype=np.float32).reshape(-1, 3),
-        "submap_index": np.asarray(run.submap_index, dtype=np.uint32),
+        **_thinned_clouds(run.submap_points, run.submap_index, run.anchor_stamps.size),
         "lm_stamp": f64([lm.submap_stamp for lm in lms]),
         "lm_origin": f64([lm.origin for lm in lms]).reshape(-1, 3),
         "lm_axis": f64([lm.axis for lm in lms]).reshape(-1, 3),
@@ -163,10 +170,25 @@ def recording_data(run: RecordingInput) -> Arrays:
         [r.candidate_origin if r.candidate_index is not None else (np.nan,) * 3 for r in results]
     ).reshape(-1, 3)
     for name, cloud in run.maps.items():
-        data[f"map_{name}_points"] = f64(cloud.points).reshape(-1, 3)
+        # float32, as the viewer takes them: half the bytes through the file.
+        data[f"map_{name}_points"] = np.asarray(cloud.points, dtype=np.float32).reshape(-1, 3)
         data[f"map_{name}_pass"] = np.asarray(cloud.pass_, dtype=np.uint8)
     data.update(_descriptor_pairs(run))
     return data
+
+
+def _thinned_clouds(points: NDArray[Any], index: NDArray[Any], submaps: int) -> Arrays:
+    """The submap clouds as drawn: each submap's points (grouped by ``index``, ascending)
+    evenly strided to at most ``CLOUD_POINTS`` (the 64-beam pe pipe: 781,000 -> 250,000
+    points handed to the worker)."""
+    p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    i = np.asarray(index, dtype=np.uint32).reshape(-1)
+    bounds = np.searchsorted(i, np.arange(submaps + 1))
+    sizes = np.diff(bounds)
+    stride = np.maximum(-(-sizes // CLOUD_POINTS), 1)
+    start = np.repeat(bounds[:-1], sizes)
+    keep = (np.arange(start.size) - start) % np.repeat(stride, sizes) == 0
+    return {"submap_points": p[: start.size][keep], "submap_index": i[: start.size][keep]}
 
 
 def _descriptor_pairs(run: RecordingInput) -> Arrays:
@@ -442,12 +464,14 @@ def _log_queries(rr: Any, rec: Any, data: Arrays) -> int:
 
 
 @functools.cache
-def _diverging_lut() -> NDArray[np.uint8]:
-    """The RdBu_r colour of each of the colormap's 256 entries as RGB bytes."""
-    from matplotlib import colormaps
-
-    cmap = colormaps["RdBu_r"]
-    return np.asarray((cmap(np.arange(cmap.N))[:, :3] * 255).astype(np.uint8))
+def _diverging_lut(entries: int = 256) -> NDArray[np.uint8]:
+    """``entries`` RGB bytes evenly along ``DIVERGING_ANCHORS``, linear between neighbours
+    (how matplotlib builds ``RdBu_r``'s 256 entries from the same anchors)."""
+    anchors = np.array([[int(h[i : i + 2], 16) for i in (0, 2, 4)] for h in DIVERGING_ANCHORS])
+    at = np.linspace(0.0, 1.0, len(anchors))
+    x = np.linspace(0.0, 1.0, entries)
+    rgb = np.stack([np.interp(x, at, anchors[:, c] / 255.0) for c in range(3)], axis=1)
+    return np.asarray((rgb * 255).astype(np.uint8))
 
 
 def _descriptor_rgb(values: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.uint8]:
