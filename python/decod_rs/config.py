@@ -14,6 +14,9 @@ from typing import Any
 from decod_rs import _core
 
 PRESETS = ("tunnel", "pipe")
+#: Matching modes of a run (``decod run --mode``): ``auto`` is ``batch`` (return landmarks query
+#: the outbound) when the trajectory has a return leg, else ``online`` (:mod:`decod_rs.pipeline`).
+MODES = ("auto", "batch", "online")
 
 
 class Config:

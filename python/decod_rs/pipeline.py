@@ -28,7 +28,7 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.aliasing import aliasing
 from decod_rs.autoscale import auto_config, probe_corridor
-from decod_rs.config import Config, load_config
+from decod_rs.config import MODES, Config, load_config
 from decod_rs.disambiguation import CorrectedFrame, near_loops, resolve_with_prior
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.graph_export import write_g2o, write_graph_json
@@ -67,7 +67,6 @@ from decod_rs.visuals import Visuals, finish_visuals, start_visuals
 
 FloatArray = NDArray[np.float64]
 
-MODES = ("auto", "batch", "online")
 PRESET_CHOICES = ("auto", "tunnel", "pipe")
 
 #: In ``auto`` mode the log is split at the turnaround (the scan farthest from the start) when

@@ -14,8 +14,7 @@ from pathlib import Path
 from decod_rs.batch.engine import ENGINES
 from decod_rs.batch.jobs import LogJob, RunOptions, build_jobs
 from decod_rs.batch.manifest import Manifest, load_manifest
-from decod_rs.config import PRESETS
-from decod_rs.pipeline import MODES
+from decod_rs.config import MODES, PRESETS
 
 __all__ = ["add_common_arguments", "jobs_from_args", "run_options"]
 

@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from decod_rs.batch.batch import LogOutcome, run_batch
 from decod_rs.batch.cli_options import add_common_arguments, jobs_from_args
 from decod_rs.batch.engine import dask_available, open_engine
+
+if TYPE_CHECKING:
+    from decod_rs.batch.batch import LogOutcome
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -33,6 +36,9 @@ def engine_note(kind: str) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here, not with the parser: GTSAM is not needed to print a command's help.
+    from decod_rs.batch.batch import run_batch
+
     jobs, manifest = jobs_from_args(args)
     if manifest is not None and manifest.grid:
         print(f"note: {manifest.source}'s [sweep] grid is for `decod sweep`; ignored here")

@@ -12,8 +12,6 @@ from pathlib import Path
 
 from decod_rs.commands.evaluate import evaluate_and_report
 from decod_rs.commands.run import print_summary
-from decod_rs.pipeline import run_log
-from decod_rs.sim import simulate
 
 #: One-way length of the demo pipe: long enough for a dozen joints and metres of drift, short
 #: enough that the whole demo takes well under a minute on two cores.
@@ -32,6 +30,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here, not with the parser (every command's help would wait for them).
+    from decod_rs.pipeline import run_log
+    from decod_rs.sim import simulate
+
     out: Path = args.out
     t0 = time.perf_counter()
     print(f"1/3 simulating a hume pipe, {DEMO_LENGTH_M:.0f} m out and back, into {out}/sim")

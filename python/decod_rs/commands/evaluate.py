@@ -13,9 +13,6 @@ from typing import Any
 import numpy as np
 
 from decod_rs.config import PRESETS
-from decod_rs.evaluate import evaluate_run, format_table
-from decod_rs.plots import plot_error_over_time, plot_pr_curve, plot_trajectories
-from decod_rs.run_files import read_loops_csv, within_run
 from decod_rs.tum import read_tum
 
 
@@ -75,6 +72,11 @@ def evaluate_and_report(
 ) -> dict[str, Any]:
     """Evaluate ``run_dir`` against ``gt``; write evaluation.json (+ plots) into ``out``
     (default: the run directory), print the table, and return the evaluation document."""
+    # Imported here, not with the parser: GTSAM and matplotlib are not needed for help.
+    from decod_rs.evaluate import evaluate_run, format_table
+    from decod_rs.plots import plot_error_over_time, plot_pr_curve, plot_trajectories
+    from decod_rs.run_files import read_loops_csv, within_run
+
     result, errors = evaluate_run(
         run_dir,
         gt,

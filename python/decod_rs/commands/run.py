@@ -6,10 +6,13 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from decod_rs.config import PRESETS
-from decod_rs.pipeline import MODES, RunSummary, run_log
+from decod_rs.config import MODES, PRESETS
 from decod_rs.recording import require_rerun
+
+if TYPE_CHECKING:
+    from decod_rs.pipeline import RunSummary
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -107,6 +110,9 @@ def run(args: argparse.Namespace) -> int:
         except ImportError as exc:
             print(f"decod run: error: {exc}", file=sys.stderr)
             return 2
+    # Imported here, not with the parser: GTSAM is not needed to print a command's help.
+    from decod_rs.pipeline import run_log
+
     summary = run_log(
         args.log,
         args.out,

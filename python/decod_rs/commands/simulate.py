@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from decod_rs.sim import DRIFT_PRESETS, SCENES, SENSORS, simulate
+from decod_rs.sim import DRIFT_PRESETS, SCENES, SENSORS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -79,6 +79,9 @@ def _scene_param(text: str) -> tuple[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here, not with the parser: the log writer is not needed for help.
+    from decod_rs.sim import simulate
+
     overrides: dict[str, float | int] = {}
     if args.h_res is not None:
         overrides["h_res_deg"] = args.h_res

@@ -7,13 +7,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from decod_rs.batch.cli_options import add_common_arguments, jobs_from_args
 from decod_rs.batch.engine import open_engine
 from decod_rs.batch.grid import check_params, implied_acceptance, parse_param, settings_from_grid
-from decod_rs.batch.sweep import TaskOutcome, run_sweep
 from decod_rs.commands.batch import engine_note
+
+if TYPE_CHECKING:
+    from decod_rs.batch.sweep import TaskOutcome
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -40,6 +42,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported here, not with the parser: GTSAM is not needed to print a command's help.
+    from decod_rs.batch.sweep import run_sweep
+
     jobs, manifest = jobs_from_args(args)
     grid: dict[str, list[Any]] = dict(manifest.grid) if manifest is not None else {}
     grid.update(parse_param(text) for text in args.param)

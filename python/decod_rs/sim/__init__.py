@@ -48,7 +48,9 @@ outbound_scans [first, last], return_scans [first, last], duration_s}, ``frames`
 ``topics``, ``files`` {log, gt, odom}.
 """
 
-from decod_rs.sim.api import SimData, SimResult, Simulation, generate, simulate
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from decod_rs.sim.drift import (
     DRIFT_PRESETS,
     LegProfile,
@@ -60,6 +62,20 @@ from decod_rs.sim.drift import (
 )
 from decod_rs.sim.scenes import SCENES, build_scene, scene_params
 from decod_rs.sim.sensors import SENSORS, SensorSpec, sensor_spec
+
+if TYPE_CHECKING:
+    from decod_rs.sim.api import SimData, SimResult, Simulation, generate, simulate
+
+#: The simulator itself (its log writer imports rosbags) is imported when first used: the
+#: scene, sensor and drift tables (``decod simulate --help``) do not wait for it.
+_API = ("SimData", "SimResult", "Simulation", "generate", "simulate")
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _API:
+        raise AttributeError(f"module 'decod_rs.sim' has no attribute {name!r}")
+    return getattr(importlib.import_module("decod_rs.sim.api"), name)
+
 
 __all__ = [
     "DRIFT_PRESETS",
