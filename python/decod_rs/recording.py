@@ -370,8 +370,8 @@ def _log_anchors(rr: Any, rec: Any, data: Arrays) -> None:
 
 
 def _log_submaps(rr: Any, rec: Any, data: Arrays) -> int:
-    """Each submap at its anchor stamp: pose, cloud (at most ``CLOUD_POINTS``), boundaries;
-    the current anchors."""
+    """Each submap at its anchor stamp: pose, cloud (as :func:`recording_data` thinned it),
+    boundaries; the current anchors."""
     anchors = data["anchor_stamps"]
     poses = _anchor_poses(data, "corrected")
     _log_anchors(rr, rec, data)
@@ -388,8 +388,7 @@ def _log_submaps(rr: Any, rec: Any, data: Arrays) -> int:
         rec.log(base, rr.Transform3D(translation=poses[k][:3, 3], mat3x3=poses[k][:3, :3]))
         cloud = points[bounds[k] : bounds[k + 1]]
         if cloud.shape[0]:
-            stride = -(-cloud.shape[0] // CLOUD_POINTS)
-            rec.log(f"{base}/cloud", rr.Points3D(cloud[::stride], colors=colours[passes[k]]))
+            rec.log(f"{base}/cloud", rr.Points3D(cloud, colors=colours[passes[k]]))
         lo = np.searchsorted(lm_stamps, stamp, side="left")
         hi = np.searchsorted(lm_stamps, stamp, side="right")
         if hi > lo:
