@@ -346,6 +346,20 @@ pub struct MatchingConfig {
     /// config: true.
     #[serde(default = "default_require_tracked_loop")]
     pub require_tracked_loop: bool,
+    /// Within a run, compare a query with a candidate only under the heading the odometry's
+    /// direction of travel allows (`matching::heading::prior`: the two landmarks' axes in
+    /// the odometry frame within 60° of parallel or antiparallel), not under both (paper
+    /// §III-B, beyond it). The reversed heading of a forward revisit pairs each keypoint with
+    /// its mirror image across the boundary, which no revisit produces; comparing it doubled
+    /// the exact matcher's GEMMs. The null model still counts both headings per candidate
+    /// (conservative). Against a survey (another session's frame) both are always compared.
+    /// `false` for ablation. Absent from a stored config: true.
+    #[serde(default = "default_heading_from_odometry")]
+    pub heading_from_odometry: bool,
+}
+
+fn default_heading_from_odometry() -> bool {
+    true
 }
 
 fn default_require_tracked_loop() -> bool {
@@ -579,6 +593,7 @@ impl DecodConfig {
                 retrieval_min_candidates: default_retrieval_min_candidates(),
                 retrieval_neighbour_extents: default_retrieval_neighbour_extents(),
                 require_tracked_loop: default_require_tracked_loop(),
+                heading_from_odometry: default_heading_from_odometry(),
             },
             graph: GraphConfig {
                 loop_factor: "five_dof".into(),

@@ -77,6 +77,52 @@ def test_a_runs_views_prepared_once_give_the_database_the_same_answers() -> None
         shared.query_batch_prepared(memo.views, [16])
 
 
+def test_the_odometry_heading_keeps_a_runs_answers_and_refuses_bad_axes() -> None:
+    # A run orients its views (each landmark's axis in the odometry frame): the return pass
+    # reversed, along -x, the outbound along +x, turned 20 degrees to stand for yaw drift.
+    # Only the heading the odometry allows is compared, and the accepted loops are those of
+    # the comparison under both headings.
+    from decod_rs.matching import PairMemo
+
+    db_views = [synthetic_landmark(3, j, stamp=float(j), view_seed=j) for j in range(12)]
+    turned = [j % 2 == 1 for j in range(0, 12, 3)]
+    queries = [
+        synthetic_landmark(3, j, stamp=500.0 + j, view_seed=50 + j, reversed=turned[k])
+        for k, j in enumerate(range(0, 12, 3))
+    ]
+    memo = PairMemo(db_views + queries, CFG)
+    yaw = np.deg2rad(20.0)
+    out = np.tile([1.0, 0.0, 0.0], (12, 1))
+    back = np.array([[-np.cos(yaw), np.sin(yaw), 0.0] if t else [1.0, 0.0, 0.0] for t in turned])
+    plain, oriented = LandmarkDatabase(CFG), LandmarkDatabase(CFG)
+    plain.extend_prepared(memo.views, list(range(12)), list(range(12)))
+    oriented.extend_prepared(memo.views, list(range(12)), list(range(12)), directions=out)
+    assert oriented.directions() == pytest.approx(out)
+    assert np.isnan(plain.directions()).all()
+    want = plain.query_batch_prepared(memo.views, list(range(12, 16)))
+    got = oriented.query_batch_prepared(memo.views, list(range(12, 16)), directions=back)
+    assert sum(r.accepted for r in want) >= 3
+    assert [(r.accepted, r.candidate_index, r.heading_deg, r.inliers) for r in got] == [
+        (r.accepted, r.candidate_index, r.heading_deg, r.inliers) for r in want
+    ]
+    with pytest.raises(ValueError, match=r"directions: shape \(1, 3\) for 4 queries"):
+        oriented.query_batch_prepared(memo.views, list(range(12, 16)), directions=back[:1])
+    # Online mode: one query at a time, with its own axis.
+    for q, axis, r in zip(queries, back, want, strict=True):
+        one = oriented.query(q, direction=axis)
+        assert (one.accepted, one.candidate_index, one.heading_deg) == (
+            r.accepted,
+            r.candidate_index,
+            r.heading_deg,
+        )
+    with pytest.raises(ValueError, match=r"direction: shape \(2,\)"):
+        oriented.query(queries[0], direction=[1.0, 0.0])
+    with pytest.raises(ValueError, match=r"directions.*is zero"):
+        oriented.set_directions([0], np.zeros((1, 3)))
+    with pytest.raises(ValueError, match=r"directions.*not finite"):
+        oriented.set_directions([0], np.full((1, 3), np.nan))
+
+
 def test_half_missing_and_misaligned_views_match() -> None:
     a = synthetic_landmark(1, 6, view_seed=1, random_view=False)
     half = synthetic_landmark(

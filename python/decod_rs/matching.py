@@ -164,17 +164,21 @@ class LandmarkDatabase:
         landmark: Landmark,
         boundary: int | None = None,
         position: ArrayLike | None = None,
+        direction: ArrayLike | None = None,
     ) -> int:
         """Prepare and store ``landmark``; returns its index. ``boundary``: the id of the
         physical boundary it views (views sharing an id are one candidate: never each
         other's runner-up); None = a boundary of its own. ``position``: where the boundary
-        lies (3,) in a frame shared by the database (see :meth:`set_positions`)."""
+        lies (3,) in a frame shared by the database (see :meth:`set_positions`);
+        ``direction``: its corridor axis (3,) in that frame (see :meth:`set_directions`)."""
         if boundary is None:
             index = self._db.add(landmark)
         else:
             index = self._db.add_view(landmark, int(boundary))
         if position is not None:
             self.set_positions([index], np.asarray(position, dtype=np.float64).reshape(1, 3))
+        if direction is not None:
+            self.set_directions([index], np.asarray(direction, dtype=np.float64).reshape(1, 3))
         return index
 
     def extend(
@@ -207,16 +211,24 @@ class LandmarkDatabase:
         indices: Sequence[int],
         boundaries: Sequence[int],
         positions: ArrayLike | None = None,
+        directions: ArrayLike | None = None,
     ) -> list[int]:
         """:meth:`extend` with landmarks ``indices`` of ``views`` (:attr:`PairMemo.views`,
-        prepared under this database's config): nothing is prepared twice."""
+        prepared under this database's config): nothing is prepared twice. ``directions``:
+        (N, 3) their corridor axes in the positions' frame (:meth:`set_directions`)."""
         idx = [int(i) for i in indices]
-        placed = None if positions is None else np.asarray(positions, dtype=np.float64)
-        if placed is not None and placed.shape != (len(idx), 3):
-            raise ValueError(f"positions: shape {placed.shape} for {len(idx)} landmarks")
+        rows = {
+            name: None if a is None else np.asarray(a, dtype=np.float64)
+            for name, a in (("positions", positions), ("directions", directions))
+        }
+        for name, a in rows.items():
+            if a is not None and a.shape != (len(idx), 3):
+                raise ValueError(f"{name}: shape {a.shape} for {len(idx)} landmarks")
         stored = self._db.extend_prepared(views, idx, [int(b) for b in boundaries])
-        if placed is not None:
-            self.set_positions(stored, placed)
+        if rows["positions"] is not None:
+            self.set_positions(stored, rows["positions"])
+        if rows["directions"] is not None:
+            self.set_directions(stored, rows["directions"])
         return stored
 
     def query_batch_prepared(
@@ -226,14 +238,21 @@ class LandmarkDatabase:
         *,
         cross_session: bool = False,
         across_passes: bool = False,
+        directions: ArrayLike | None = None,
     ) -> list[QueryResult]:
         """:meth:`query_batch` with landmarks ``indices`` of ``views`` as the queries.
         ``across_passes``: the queries are another pass of this run than the database's
         (batch mode), so every entry that shares no scan with a query is eligible, without
-        ``min_time_separation_s``."""
-        return self._db.query_batch_prepared(
-            views, [int(i) for i in indices], cross_session, across_passes
-        )
+        ``min_time_separation_s``. ``directions``: (k, 3) each query's corridor axis in the
+        frame of :meth:`set_directions`; a query is then compared with an oriented entry only
+        under the heading the odometry allows (``matching.heading_from_odometry``)."""
+        idx = [int(i) for i in indices]
+        axes = None
+        if directions is not None:
+            axes = np.ascontiguousarray(directions, dtype=np.float64)
+            if axes.shape != (len(idx), 3):
+                raise ValueError(f"directions: shape {axes.shape} for {len(idx)} queries")
+        return self._db.query_batch_prepared(views, idx, cross_session, across_passes, axes)
 
     def boundaries(self) -> list[int]:
         """The physical boundary id of every stored view."""
@@ -248,13 +267,39 @@ class LandmarkDatabase:
         array = np.ascontiguousarray(positions, dtype=np.float64)
         self._db.set_positions([int(i) for i in indices], array)
 
+    def set_directions(self, indices: Sequence[int], directions: ArrayLike) -> None:
+        """Orient stored views: ``directions`` (k, 3), the corridor axes of ``indices`` (each
+        landmark's axis, oriented with the sensor's forward) in the frame of
+        :meth:`set_positions`. Only a run's own odometry frame qualifies (queries bring their
+        axes in it to :meth:`query_batch_prepared`)."""
+        array = np.ascontiguousarray(directions, dtype=np.float64)
+        self._db.set_directions([int(i) for i in indices], array)
+
+    def directions(self) -> NDArray[np.float64]:
+        """(n, 3) each stored view's direction, NaN where none was set."""
+        return self._db.directions()
+
     def positions(self) -> NDArray[np.float64]:
         """(n, 3) each stored view's position, NaN where none was set."""
         return self._db.positions()
 
-    def query(self, query: Landmark, config: MatchingConfigLike = None) -> QueryResult:
-        """The best eligible candidate for ``query`` (database config unless given)."""
-        return self._db.query(query, self._json(config))
+    def query(
+        self,
+        query: Landmark,
+        config: MatchingConfigLike = None,
+        direction: ArrayLike | None = None,
+    ) -> QueryResult:
+        """The best eligible candidate for ``query`` (database config unless given).
+        ``direction``: (3,) its corridor axis in the frame of :meth:`set_directions` (online
+        mode within a run: only the heading the odometry allows is compared with an oriented
+        view)."""
+        axis = None
+        if direction is not None:
+            a = np.asarray(direction, dtype=np.float64).reshape(-1)
+            if a.shape != (3,):
+                raise ValueError(f"direction: shape {a.shape}, expected (3,)")
+            axis = (float(a[0]), float(a[1]), float(a[2]))
+        return self._db.query(query, self._json(config), axis)
 
     def query_batch(
         self,

@@ -60,7 +60,13 @@ from decod_rs.sequential import (
     transverse_noise_m,
 )
 from decod_rs.survey import Survey, check_compatible, load_survey, survey_config
-from decod_rs.tracks import group_views, tracked_loops, views_per_landmark, world_origins
+from decod_rs.tracks import (
+    group_views,
+    tracked_loops,
+    views_per_landmark,
+    world_axes,
+    world_origins,
+)
 from decod_rs.tum import interpolate_poses, write_tum
 from decod_rs.unmeasured import Stretch, unmeasured, unmeasured_report
 from decod_rs.visuals import Visuals, finish_visuals, start_visuals
@@ -160,7 +166,7 @@ def _split_stamp(stamps: FloatArray, poses: FloatArray) -> float | None:
 def _match(
     landmarks: list[Landmark],
     tracks: NDArray[np.int64],
-    where: FloatArray,
+    where: tuple[FloatArray, FloatArray],
     cfg: Config,
     mode: str,
     split: float | None,
@@ -168,8 +174,10 @@ def _match(
 ) -> tuple[list[QueryResult], str, list[int]]:
     """Queries and their top-1 results, the mode used, and the landmark behind each
     database index. Every view goes into the database under its track (physical boundary)
-    id, placed at ``where`` (N, 3), its origin in the odometry frame; batch mode takes the
-    landmarks as the track links prepared them (``pairs.views``)."""
+    id, placed at ``where`` (origins and axes, (N, 3) each, in the odometry frame: the
+    coarse stage's neighbours and the heading prior); batch mode takes the landmarks as the
+    track links prepared them (``pairs.views``)."""
+    origins, axes = where
     db = LandmarkDatabase(cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
@@ -180,16 +188,18 @@ def _match(
             )
         outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
         views = pairs.views
-        db.extend_prepared(
-            views, outbound, [int(tracks[k]) for k in outbound], where[outbound].reshape(-1, 3)
-        )
+        ids = [int(tracks[k]) for k in outbound]
+        db.extend_prepared(views, outbound, ids, origins[outbound], axes[outbound])
         queries = [k for k, lm in enumerate(landmarks) if lm.submap_stamp > split]
-        return db.query_batch_prepared(views, queries, across_passes=True), mode, outbound
+        results = db.query_batch_prepared(
+            views, queries, across_passes=True, directions=axes[queries]
+        )
+        return results, mode, outbound
     results = []
     order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
     for k in order:
-        results.append(db.query(landmarks[k]))
-        db.add(landmarks[k], int(tracks[k]), where[k])
+        results.append(db.query(landmarks[k], direction=axes[k]))
+        db.add(landmarks[k], int(tracks[k]), origins[k], axes[k])
     return results, mode, order
 
 
@@ -345,7 +355,7 @@ def _match_and_select(
         same_boundary(ex.landmarks, m, pairs),
         split_stamp=split,
     )
-    where = world_origins(ex.landmarks, anchors)
+    where = (world_origins(ex.landmarks, anchors), world_axes(ex.landmarks, anchors))
     results, used_mode, db_order = _match(ex.landmarks, tracks, where, cfg, mode, split, pairs)
     pairs.release_views()
     views = views_per_landmark(tracks)

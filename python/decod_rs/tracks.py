@@ -43,6 +43,7 @@ __all__ = [
     "group_views",
     "tracked_loops",
     "views_per_landmark",
+    "world_axes",
     "world_origins",
 ]
 
@@ -53,6 +54,15 @@ def world_origins(landmarks: Sequence[Landmark], anchors: dict[float, FloatArray
     for k, lm in enumerate(landmarks):
         pose = anchors[lm.submap_stamp]
         out[k] = pose[:3, :3] @ lm.origin + pose[:3, 3]
+    return out
+
+
+def world_axes(landmarks: Sequence[Landmark], anchors: dict[float, FloatArray]) -> FloatArray:
+    """``(N, 3)`` landmark corridor axes (oriented with the sensor's forward) in the odometry
+    (world) frame of their anchors."""
+    out = np.empty((len(landmarks), 3))
+    for k, lm in enumerate(landmarks):
+        out[k] = anchors[lm.submap_stamp][:3, :3] @ lm.axis
     return out
 
 

@@ -33,8 +33,8 @@ use serde::{Deserialize, Serialize};
 use super::patches::PatchShape;
 use super::retrieval::CoarseIndex;
 use super::{
-    Heading, PairResult, PreparedLandmark, QuerySide, Rejection, check_grids, compare_prepared,
-    null_model,
+    Heading, PairResult, PreparedLandmark, QuerySide, Rejection, check_grids, compare_prepared_in,
+    heading, null_model,
 };
 use crate::config::MatchingConfig;
 use crate::error::{DecodError, Result};
@@ -127,6 +127,9 @@ pub struct LandmarkDatabase {
     /// Each entry's boundary origin in the database's frame (NaN when not placed): the
     /// coarse short list is widened by the entries near its own ([`Self::candidates`]).
     positions: Vec<[f64; 3]>,
+    /// Each entry's corridor axis in the same frame (NaN when not set): with a query's own,
+    /// the heading the odometry allows ([`super::heading::prior`], [`Self::set_directions`]).
+    directions: Vec<[f64; 3]>,
     /// The distinct boundary ids (the null model's family when every entry is eligible,
     /// without sorting 10,000 ids per query).
     distinct: std::collections::HashSet<u64>,
@@ -145,6 +148,41 @@ pub enum Eligibility {
     /// boundaries the two passes see within `min_time_separation_s` of each other, those near
     /// the turnaround (with a forward-looking sensor in a wide tunnel, 14 m of it).
     AcrossPasses,
+}
+
+/// How one query runs: its corridor axis in the database's frame (the heading prior; `None`:
+/// both headings), in parallel or not, and which entries are eligible.
+#[derive(Clone, Copy, Debug)]
+struct QueryContext {
+    direction: Option<[f64; 3]>,
+    parallel: bool,
+    eligibility: Eligibility,
+}
+
+/// `rows[k]` for entry `indices[k]` of `n`: as many rows as indices, every index stored, every
+/// value finite (`what` names the argument in the error).
+fn check_rows(what: &str, indices: &[usize], rows: &[[f64; 3]], n: usize) -> Result<()> {
+    if indices.len() != rows.len() {
+        return Err(DecodError::invalid(
+            what,
+            format!("{} {what} for {} indices", rows.len(), indices.len()),
+        ));
+    }
+    for (&i, p) in indices.iter().zip(rows) {
+        if i >= n {
+            return Err(DecodError::invalid(
+                what,
+                format!("index {i} beyond the {n} entries"),
+            ));
+        }
+        if !p.iter().all(|v| v.is_finite()) {
+            return Err(DecodError::invalid(
+                what,
+                format!("entry {i}: {p:?} is not finite"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Whether the prepared data of `a` is valid for `b` (same normalisation, keypoints, patches).
@@ -199,6 +237,7 @@ impl LandmarkDatabase {
             boundaries: Vec::new(),
             coarse: CoarseIndex::default(),
             positions: Vec::new(),
+            directions: Vec::new(),
             distinct: std::collections::HashSet::new(),
         }
     }
@@ -246,6 +285,7 @@ impl LandmarkDatabase {
             .push(prepared.coarse.first().map_or(&[][..], |v| &v[..]));
         self.entries.push(Arc::new(prepared));
         self.positions.push([f64::NAN; 3]);
+        self.directions.push([f64::NAN; 3]);
         self.boundaries.push(boundary);
         self.distinct.insert(boundary);
         Ok(self.entries.len() - 1)
@@ -262,34 +302,41 @@ impl LandmarkDatabase {
     /// a descriptor's extent of its own ([`Self::candidates`]); unplaced entries are only
     /// reached through the signature.
     pub fn set_positions(&mut self, indices: &[usize], positions: &[[f64; 3]]) -> Result<()> {
-        if indices.len() != positions.len() {
-            return Err(DecodError::invalid(
-                "positions",
-                format!(
-                    "{} positions for {} indices",
-                    positions.len(),
-                    indices.len()
-                ),
-            ));
-        }
-        for (&i, p) in indices.iter().zip(positions) {
-            if i >= self.positions.len() {
-                return Err(DecodError::invalid(
-                    "positions",
-                    format!("index {i} beyond the {} entries", self.positions.len()),
-                ));
-            }
-            if !p.iter().all(|v| v.is_finite()) {
-                return Err(DecodError::invalid(
-                    "positions",
-                    format!("entry {i}: position {p:?} is not finite"),
-                ));
-            }
-        }
+        check_rows("positions", indices, positions, self.entries.len())?;
         for (&i, p) in indices.iter().zip(positions) {
             self.positions[i] = *p;
         }
         Ok(())
+    }
+
+    /// Orients entries: `directions[k]` is the corridor axis of entry `indices[k]` (the
+    /// landmark's axis, oriented with the sensor's forward) in the frame of
+    /// [`Self::set_positions`]. A query that brings its own axis in that frame
+    /// ([`Self::query_batch_prepared`]) is then compared with such an entry under the heading
+    /// the odometry allows only ([`super::heading::prior`]), when the config's
+    /// `heading_from_odometry` is on. Only a run's own frame qualifies: a survey's corrected
+    /// frame is not the new run's odometry frame.
+    pub fn set_directions(&mut self, indices: &[usize], directions: &[[f64; 3]]) -> Result<()> {
+        check_rows("directions", indices, directions, self.entries.len())?;
+        if let Some((&i, d)) = indices
+            .iter()
+            .zip(directions)
+            .find(|(_, d)| d.iter().map(|v| v * v).sum::<f64>() == 0.0)
+        {
+            return Err(DecodError::invalid(
+                "directions",
+                format!("entry {i}: direction {d:?} is zero"),
+            ));
+        }
+        for (&i, d) in indices.iter().zip(directions) {
+            self.directions[i] = *d;
+        }
+        Ok(())
+    }
+
+    /// Each entry's direction (NaN where none was set, [`Self::set_directions`]).
+    pub fn directions(&self) -> &[[f64; 3]] {
+        &self.directions
     }
 
     /// Each entry's position (NaN where none was set, [`Self::set_positions`]).
@@ -373,6 +420,7 @@ impl LandmarkDatabase {
         }
         self.entries.extend(prepared);
         self.positions.resize(self.entries.len(), [f64::NAN; 3]);
+        self.directions.resize(self.entries.len(), [f64::NAN; 3]);
         self.distinct.extend(boundaries.iter().copied());
         self.boundaries.extend(boundaries);
         Ok((start..self.entries.len()).collect())
@@ -381,6 +429,28 @@ impl LandmarkDatabase {
     /// Best eligible candidate for `query` (rayon over candidates); see the module docs.
     pub fn query(&self, query: &Landmark, cfg: &MatchingConfig) -> Result<QueryResult> {
         self.query_with(query, cfg, true, Eligibility::WithinRun)
+    }
+
+    /// [`Self::query`] with the query's corridor axis in the frame of [`Self::set_directions`]
+    /// (online mode within a run: the heading prior).
+    pub fn query_directed(
+        &self,
+        query: &Landmark,
+        direction: &[f64; 3],
+        cfg: &MatchingConfig,
+    ) -> Result<QueryResult> {
+        if !direction.iter().all(|v| v.is_finite()) {
+            return Err(DecodError::invalid(
+                "direction",
+                format!("{direction:?} is not finite"),
+            ));
+        }
+        let ctx = QueryContext {
+            direction: Some(*direction),
+            parallel: true,
+            eligibility: Eligibility::WithinRun,
+        };
+        self.query_in(query, cfg, ctx)
     }
 
     /// [`Self::query`] on one thread (reference for the parallel path; results are identical).
@@ -416,16 +486,44 @@ impl LandmarkDatabase {
     /// [`Self::query_batch_with`] for queries already prepared under `cfg`
     /// ([`super::prepare_views`]); under another config than the database's, each query is
     /// prepared again from its landmark (as [`Self::query_batch_with`] does).
+    ///
+    /// `directions`: each query's corridor axis in the frame of [`Self::set_directions`]
+    /// (one per query), for the heading prior; `None` compares both headings everywhere.
     pub fn query_batch_prepared(
         &self,
         queries: &[&PreparedLandmark],
+        directions: Option<&[[f64; 3]]>,
         cfg: &MatchingConfig,
         eligibility: Eligibility,
     ) -> Result<Vec<QueryResult>> {
+        if let Some(d) = directions {
+            if d.len() != queries.len() {
+                return Err(DecodError::invalid(
+                    "directions",
+                    format!("{} directions for {} queries", d.len(), queries.len()),
+                ));
+            }
+            if let Some((k, bad)) = d
+                .iter()
+                .enumerate()
+                .find(|(_, v)| !v.iter().all(|x| x.is_finite()))
+            {
+                return Err(DecodError::invalid(
+                    "directions",
+                    format!("query {k}: direction {bad:?} is not finite"),
+                ));
+            }
+        }
+        let context = |k: usize| QueryContext {
+            direction: directions.and_then(|d| d.get(k)).copied(),
+            parallel: true,
+            eligibility,
+        };
         if *cfg != self.config {
             return queries
                 .par_iter()
-                .map(|q| self.query_with(&q.landmark, cfg, true, eligibility))
+                .enumerate()
+                .map(|(k, q)| self.query_in(&q.landmark, cfg, context(k)))
                 .collect();
         }
         if let (Some(first), Some(q)) = (self.entries.first(), queries.first()) {
@@ -436,7 +534,8 @@ impl LandmarkDatabase {
         }
         Ok(queries
             .par_iter()
-            .map(|q| self.query_prepared(q, &self.entries, &self.shape, cfg, true, eligibility))
+            .enumerate()
+            .map(|(k, q)| self.query_prepared(q, &self.entries, &self.shape, cfg, context(k)))
             .collect())
     }
 
@@ -551,6 +650,21 @@ impl LandmarkDatabase {
         parallel: bool,
         eligibility: Eligibility,
     ) -> Result<QueryResult> {
+        let ctx = QueryContext {
+            direction: None,
+            parallel,
+            eligibility,
+        };
+        self.query_in(query, cfg, ctx)
+    }
+
+    /// The query in a context (with its direction, in parallel or not, eligibility).
+    fn query_in(
+        &self,
+        query: &Landmark,
+        cfg: &MatchingConfig,
+        ctx: QueryContext,
+    ) -> Result<QueryResult> {
         if let Some(first) = self.entries.first() {
             check_grids(&first.landmark, query)?;
         }
@@ -569,7 +683,7 @@ impl LandmarkDatabase {
                 (&reprepared, shape)
             };
         let q = PreparedLandmark::new_query(Arc::new(query.clone()), cfg, &shape)?;
-        Ok(self.query_prepared(&q, entries, &shape, cfg, parallel, eligibility))
+        Ok(self.query_prepared(&q, entries, &shape, cfg, ctx))
     }
 
     /// The query, prepared like `entries` (with all its coarse signatures), against them.
@@ -579,15 +693,23 @@ impl LandmarkDatabase {
         entries: &[Arc<PreparedLandmark>],
         shape: &PatchShape,
         cfg: &MatchingConfig,
-        parallel: bool,
-        eligibility: Eligibility,
+        ctx: QueryContext,
     ) -> QueryResult {
+        let QueryContext {
+            direction,
+            parallel,
+            eligibility,
+        } = ctx;
         let side = QuerySide::new(q, shape);
         let (compared, eligible) = self.candidates(q, entries, cfg, parallel, eligibility);
+        let headings = |index: usize| match (direction, self.directions.get(index)) {
+            (Some(d), Some(e)) if cfg.heading_from_odometry => heading::prior(&d, e),
+            _ => &Heading::BOTH,
+        };
         let work = |&index: &usize| {
             (
                 index,
-                compare_prepared(q, &side, &entries[index], cfg, shape),
+                compare_prepared_in(q, &side, &entries[index], headings(index), cfg, shape),
             )
         };
         let run = |indices: &[usize]| -> Vec<(usize, PairResult)> {

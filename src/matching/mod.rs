@@ -486,6 +486,22 @@ pub fn compare_prepared(
     cfg: &MatchingConfig,
     shape: &PatchShape,
 ) -> PairResult {
+    compare_prepared_in(q, side, c, &Heading::BOTH, cfg, shape)
+}
+
+/// [`compare_prepared`] under `headings` only (one of them: [`heading::prior`]; both: the
+/// better, as [`compare_prepared`]).
+pub fn compare_prepared_in(
+    q: &PreparedLandmark,
+    side: &QuerySide,
+    c: &PreparedLandmark,
+    headings: &[Heading],
+    cfg: &MatchingConfig,
+    shape: &PatchShape,
+) -> PairResult {
+    if let [only] = headings {
+        return compare_heading(q, side, c, *only, cfg, shape);
+    }
     let [forward, reversed] = Heading::BOTH.map(|h| compare_heading(q, side, c, h, cfg, shape));
     let key = |r: &PairResult| {
         (

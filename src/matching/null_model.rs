@@ -26,7 +26,9 @@
 //!
 //! **Query level.** A query compares its boundary with `n` distinct database boundaries
 //! under two headings, so the family-wise chance of a false Top-1 is at most
-//! `1 - (1 - p)^(2n)`. The best candidate is accepted iff this is at most
+//! `1 - (1 - p)^(2n)` (within a run the odometry's direction of travel usually leaves one
+//! heading per candidate, `heading::prior`; the family still counts two, which only makes
+//! the test stricter). The best candidate is accepted iff this is at most
 //! `false_alarm_rate`. It is ambiguous (`not_unique`) when the runner-up — another physical
 //! boundary: views of one boundary are one candidate — is itself beyond chance at
 //! `uniqueness_alpha` *and* the best does not lead it significantly: under "both are equally

@@ -234,11 +234,11 @@ fn across_passes_drops_the_time_separation_but_not_shared_scans() {
     let shared = prepare(shared);
     let queries = [&close, &shared];
     let within = db
-        .query_batch_prepared(&queries, &c, database::Eligibility::WithinRun)
+        .query_batch_prepared(&queries, None, &c, database::Eligibility::WithinRun)
         .unwrap();
     assert!(within.iter().all(|r| r.eligible == 0), "{within:?}");
     let across = db
-        .query_batch_prepared(&queries, &c, database::Eligibility::AcrossPasses)
+        .query_batch_prepared(&queries, None, &c, database::Eligibility::AcrossPasses)
         .unwrap();
     assert_eq!(across[0].eligible, 1);
     assert!(across[0].accepted, "{:?}", across[0]);
@@ -729,7 +729,7 @@ fn views_prepared_once_compare_and_query_like_fresh_ones() {
         .unwrap();
     let picked: Vec<&PreparedLandmark> = views[n..].iter().map(|v| &**v).collect();
     let got = shared
-        .query_batch_prepared(&picked, &c, database::Eligibility::WithinRun)
+        .query_batch_prepared(&picked, None, &c, database::Eligibility::WithinRun)
         .unwrap();
     assert_eq!(got, fresh.query_batch(&queries, &c).unwrap());
     assert!(got.iter().filter(|r| r.accepted).count() >= 5);
@@ -742,4 +742,53 @@ fn views_prepared_once_compare_and_query_like_fresh_ones() {
             .is_err()
     );
     assert!(db.is_empty());
+}
+
+#[test]
+fn heading_prior_compares_only_the_heading_the_odometry_allows() {
+    // A boundary revisited in the opposite direction: without directions both headings are
+    // compared and the reversed one wins; with the axes antiparallel in the run's frame only
+    // the reversed one is compared (same result); with them parallel (a prior that
+    // contradicts the descriptors) only the forward one is, and nothing matches: the prior
+    // decides which comparisons are made, not what they find. `heading_from_odometry = false`
+    // ignores the directions.
+    let mut c = cfg();
+    let j = joint(1, 7);
+    let mut db = LandmarkDatabase::new(&c);
+    db.add(j.observe(&Observation::default(), 1)).unwrap();
+    db.set_directions(&[0], &[[1.0, 0.0, 0.0]]).unwrap();
+    let shape = patches::PatchShape::new(&c);
+    let back = Observation {
+        reversed: true,
+        ..later(100.0)
+    };
+    let q = PreparedLandmark::new_query(Arc::new(j.observe(&back, 2)), &c, &shape).unwrap();
+    let run = |c: &MatchingConfig, dir: Option<[f64; 3]>| {
+        let d = dir.map(|d| vec![d]);
+        db.query_batch_prepared(&[&q], d.as_deref(), c, database::Eligibility::WithinRun)
+            .unwrap()
+            .remove(0)
+    };
+    let both = run(&c, None);
+    assert!(both.accepted, "{both:?}");
+    assert_eq!(both.heading(), Heading::Reversed);
+    let allowed = run(&c, Some([-0.9, 0.3, 0.0]));
+    assert_eq!(allowed.pair, both.pair);
+    let contradicted = run(&c, Some([0.9, -0.3, 0.0]));
+    assert_eq!(contradicted.heading(), Heading::Forward);
+    assert!(!contradicted.accepted, "{contradicted:?}");
+    c.heading_from_odometry = false;
+    // The database's own config still has the prior on: another config re-prepares.
+    let off = run(&c, Some([0.9, -0.3, 0.0]));
+    assert!(
+        off.accepted && off.heading() == Heading::Reversed,
+        "{off:?}"
+    );
+    // Bad directions are refused, naming the argument.
+    let err = db.set_directions(&[0], &[[0.0; 3]]).unwrap_err();
+    assert!(err.to_string().contains("directions"), "{err}");
+    let err = db
+        .query_batch_prepared(&[&q], Some(&[]), &c, database::Eligibility::WithinRun)
+        .unwrap_err();
+    assert!(err.to_string().contains("1 queries"), "{err}");
 }

@@ -418,8 +418,9 @@ impl PyLandmarkDatabase {
     }
     /// Batch queries with the views at `indices` of `views` (see `query_batch`);
     /// `across_passes`: the queries are another pass of the run than the database's (no
-    /// time separation, `Eligibility::AcrossPasses`).
-    #[pyo3(signature = (views, indices, cross_session, across_passes = false))]
+    /// time separation, `Eligibility::AcrossPasses`); `directions` (k, 3): each query's
+    /// corridor axis in the frame of `set_directions` (the heading prior).
+    #[pyo3(signature = (views, indices, cross_session, across_passes = false, directions = None))]
     fn query_batch_prepared(
         &self,
         py: Python<'_>,
@@ -427,14 +428,18 @@ impl PyLandmarkDatabase {
         indices: Vec<usize>,
         cross_session: bool,
         across_passes: bool,
+        directions: Option<PyReadonlyArray2<'_, f64>>,
     ) -> PyResult<Vec<PyQueryResult>> {
         let picked: Vec<&matching::PreparedLandmark> =
             views.pick(&indices)?.into_iter().map(|v| &**v).collect();
+        let directions = directions
+            .map(|d| points_n3(&d, "directions"))
+            .transpose()?;
         let cfg = &views.config;
         let db = &self.inner;
         let eligibility = eligibility_of(cross_session, across_passes);
         let results = detached(py, move || {
-            db.query_batch_prepared(&picked, cfg, eligibility)
+            db.query_batch_prepared(&picked, directions.as_deref(), cfg, eligibility)
         })?;
         Ok(results
             .into_iter()
@@ -454,6 +459,21 @@ impl PyLandmarkDatabase {
         let rows = points_n3(&positions, "positions")?;
         self.inner.set_positions(&indices, &rows).map_err(to_py_err)
     }
+    /// Orients entries `indices` along `directions` (k, 3) in the positions' frame.
+    fn set_directions(
+        &mut self,
+        indices: Vec<usize>,
+        directions: PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<()> {
+        let rows = points_n3(&directions, "directions")?;
+        self.inner
+            .set_directions(&indices, &rows)
+            .map_err(to_py_err)
+    }
+    /// Each entry's direction (n, 3), NaN where none was set.
+    fn directions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        rows_to_numpy(py, self.inner.directions())
+    }
     /// Each entry's position (n, 3), NaN where none was set.
     fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         rows_to_numpy(py, self.inner.positions())
@@ -471,17 +491,23 @@ impl PyLandmarkDatabase {
         let db = &mut self.inner;
         detached(py, move || db.extend(ls))
     }
-    /// Best eligible candidate for `query`.
+    /// Best eligible candidate for `query`; `direction` (3,): its corridor axis in the frame
+    /// of `set_directions` (the heading prior).
+    #[pyo3(signature = (query, config_json, direction = None))]
     fn query(
         &self,
         py: Python<'_>,
         query: PyRef<'_, PyLandmark>,
         config_json: &str,
+        direction: Option<[f64; 3]>,
     ) -> PyResult<PyQueryResult> {
         let cfg = config_from_json(config_json)?;
         let q = query.inner.clone();
         let db = &self.inner;
-        let inner = detached(py, move || db.query(&q, &cfg))?;
+        let inner = detached(py, move || match direction {
+            Some(d) => db.query_directed(&q, &d, &cfg),
+            None => db.query(&q, &cfg),
+        })?;
         Ok(PyQueryResult { inner })
     }
     /// Every query against the database (batch mode), queries in parallel;
