@@ -57,7 +57,7 @@ fn bench(c: &mut Criterion) {
     ) else {
         return;
     };
-    let side = QuerySide::new(&q, &shape);
+    let side = QuerySide::new(&q);
     group.bench_function("pair_prepared", |b| {
         b.iter(|| compare_prepared(black_box(&q), &side, black_box(&cand), &cfg, &shape))
     });

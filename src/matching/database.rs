@@ -700,7 +700,7 @@ impl LandmarkDatabase {
             parallel,
             eligibility,
         } = ctx;
-        let side = QuerySide::new(q, shape);
+        let side = QuerySide::new(q);
         let (compared, eligible) = self.candidates(q, entries, cfg, parallel, eligibility);
         let headings = |index: usize| match (direction, self.directions.get(index)) {
             (Some(d), Some(e)) if cfg.heading_from_odometry => heading::prior(&d, e),

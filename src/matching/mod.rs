@@ -25,7 +25,7 @@ pub mod retrieval;
 pub mod synthetic;
 pub mod verify;
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use serde::{Deserialize, Serialize};
 
@@ -257,24 +257,29 @@ impl PreparedLandmark {
     }
 }
 
-/// The query side of a prepared landmark: its patch factors under both headings and its
-/// flipped mask. Cheap (a rearrangement), built per query.
+/// The query side of a prepared landmark: its patch factors under each heading, built on
+/// first use (within a run the heading prior usually asks for one of them only), and its
+/// flipped mask.
 #[derive(Clone, Debug)]
 pub struct QuerySide {
-    sides: [QueryPatches; 2],
+    sides: [OnceLock<QueryPatches>; 2],
     flipped_bits: Vec<u64>,
 }
 
 impl QuerySide {
-    /// Builds both headings' query factors.
-    pub fn new(p: &PreparedLandmark, shape: &PatchShape) -> Self {
+    /// The query side of `p` (its factors are built by the comparisons that need them).
+    pub fn new(p: &PreparedLandmark) -> Self {
         Self {
-            sides: [
-                QueryPatches::from_candidate(shape, &p.patches, false),
-                QueryPatches::from_candidate(shape, &p.patches, true),
-            ],
+            sides: [OnceLock::new(), OnceLock::new()],
             flipped_bits: p.flipped_bits.clone(),
         }
+    }
+
+    /// The query factors of `p` (the landmark this side was built from) under `heading`.
+    fn patches(&self, p: &PreparedLandmark, shape: &PatchShape, heading: Heading) -> &QueryPatches {
+        let flipped = heading == Heading::Reversed;
+        self.sides[usize::from(flipped)]
+            .get_or_init(|| QueryPatches::from_candidate(shape, &p.patches, flipped))
     }
 }
 
@@ -421,7 +426,7 @@ fn compare_prepared_pairs<'a>(
             let Some(q) = get(i) else {
                 return Vec::new();
             };
-            let side = QuerySide::new(q, shape);
+            let side = QuerySide::new(q);
             ks.iter()
                 .filter_map(|&k| {
                     let c = get(pairs[k].1)?;
@@ -452,7 +457,7 @@ fn compare_with_chance(
     cfg: &MatchingConfig,
     shape: &PatchShape,
 ) -> PairResult {
-    let side = QuerySide::new(q, shape);
+    let side = QuerySide::new(q);
     let mut pair = compare_prepared(q, &side, c, cfg, shape);
     if cfg.verification {
         pair.chance = pair_chance(q, c, &pair, cfg);
@@ -558,10 +563,7 @@ fn compare_heading(
         result.rejection = Some(Rejection::InsufficientOverlap);
         return result;
     }
-    let qp = match heading {
-        Heading::Forward => &side.sides[0],
-        Heading::Reversed => &side.sides[1],
-    };
+    let qp = side.patches(q, shape, heading);
     let dist = patches::distances(shape, qp, &c.patches, cfg.min_patch_overlap_fraction);
     let pairs = correspondences::mutual_nearest(&dist);
     let matches: Vec<Correspondence> = pairs
