@@ -97,28 +97,39 @@ class Selection:
     conflicts: list[tuple[int, int]]
 
 
+#: Loops compared per block in :func:`_relations` (bounds its memory: a block holds
+#: ``RELATION_BLOCK x n`` separations, 4 MB at 1,000 loops).
+RELATION_BLOCK = 512
+
+
 def _relations(
     loops: list[LoopEvidence], tolerance_m: float, drift_fraction: float, window_m: float
 ) -> tuple[list[set[int]], list[set[int]]]:
-    """Per loop: the loops it conflicts with, and those that corroborate it."""
+    """Per loop: the loops it conflicts with, and those that corroborate it. Two loops are
+    related when their anchors lie within ``window_m`` of each other (query and database
+    path positions summed); related, they conflict when their corrections differ by more
+    than ``tolerance_m + drift_fraction * separation``, and otherwise corroborate each other
+    unless they share a query submap (which may contradict itself, not corroborate itself:
+    its views share the query's pose)."""
     n = len(loops)
     conflicts: list[set[int]] = [set() for _ in range(n)]
     support: list[set[int]] = [set() for _ in range(n)]
-    for i in range(n):
-        for j in range(i + 1, n):
-            a, b = loops[i], loops[j]
-            sep = abs(a.query_path_m - b.query_path_m) + abs(a.db_path_m - b.db_path_m)
-            if sep > window_m:
-                continue
-            allowance = tolerance_m + drift_fraction * sep
-            if float(np.linalg.norm(a.correction - b.correction)) > allowance:
-                conflicts[i].add(j)
-                conflicts[j].add(i)
-            elif a.query_stamp != b.query_stamp:
-                # Loops of one query submap may contradict each other but do not
-                # corroborate each other: they share the query's pose.
-                support[i].add(j)
-                support[j].add(i)
+    if n < 2:
+        return conflicts, support
+    q = np.array([lp.query_path_m for lp in loops], dtype=np.float64)
+    d = np.array([lp.db_path_m for lp in loops], dtype=np.float64)
+    c = np.array([lp.correction for lp in loops], dtype=np.float64).reshape(n, -1)
+    stamp = np.array([lp.query_stamp for lp in loops], dtype=np.float64)
+    for lo in range(0, n, RELATION_BLOCK):
+        rows = np.arange(lo, min(lo + RELATION_BLOCK, n))
+        sep = np.abs(q[rows, None] - q[None, :]) + np.abs(d[rows, None] - d[None, :])
+        gap = np.linalg.norm(c[rows, None, :] - c[None, :, :], axis=2)
+        near = (sep <= window_m) & (rows[:, None] != np.arange(n)[None, :])
+        clash = near & (gap > tolerance_m + drift_fraction * sep)
+        agree = near & ~clash & (stamp[rows, None] != stamp[None, :])
+        for r, i in enumerate(rows.tolist()):
+            conflicts[i] = set(np.flatnonzero(clash[r]).tolist())
+            support[i] = set(np.flatnonzero(agree[r]).tolist())
     return conflicts, support
 
 
