@@ -97,8 +97,9 @@ class Selection:
     conflicts: list[tuple[int, int]]
 
 
-#: Loops compared per block in :func:`_relations` (bounds its memory: a block holds
-#: ``RELATION_BLOCK x n`` separations, 4 MB at 1,000 loops).
+#: Loops compared per block in :func:`_relations` (bounds its memory: a block's arrays are
+#: ``RELATION_BLOCK x n``, 4 MB each at 1,000 loops, the correction differences three times
+#: that while their norms are taken).
 RELATION_BLOCK = 512
 
 
@@ -114,7 +115,7 @@ def _relations(
     n = len(loops)
     conflicts: list[set[int]] = [set() for _ in range(n)]
     support: list[set[int]] = [set() for _ in range(n)]
-    if n < 2:
+    if n < 2:  # (also: an empty correction array cannot be reshaped to (0, 3))
         return conflicts, support
     q = np.array([lp.query_path_m for lp in loops], dtype=np.float64)
     d = np.array([lp.db_path_m for lp in loops], dtype=np.float64)
