@@ -395,41 +395,64 @@ def _resolve(
     return replace(matched, keep=keep, reasons=reasons, by_prior=by_prior)
 
 
-def _factors(
+@dataclass(frozen=True)
+class _TrackTerms:
+    """What the factors take from the tracks alone, the same for every loop set of a round
+    (stage 3b and the drops change the loops, never the tracks): the spread across the axis
+    every factor takes, the boundaries' polarity, and the sequential factors (computed once
+    per round: they were 0.1 s of each of the two or more solves of a 64-beam run)."""
+
+    across: float | None
+    polarity: float | None
+    seq: SequentialFactors | None
+
+
+def _track_terms(
     ex: _Extracted,
     matched: _Matched,
     cfg: Config,
     scans: tuple[FloatArray, FloatArray],
-) -> tuple[list[LoopConstraint], SequentialFactors | None]:
-    """Loop factors of the kept loops, then the sequential factors of the tracks; across the
-    axis, every factor takes the spread measured on the tracks (:mod:`decod_rs.sequential`)."""
+) -> _TrackTerms:
+    """The sequential factors of the tracks and what the loop factors share with them
+    (:mod:`decod_rs.sequential`)."""
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
     across = transverse_noise_m(
         ex.landmarks, matched.tracks, anchors, float(cfg.graph.landmark_position_sigma_m)
     )
     polarity = boundary_polarity(ex.landmarks)
+    seq = None
+    if cfg.graph.sequential:
+        seq = sequential_constraints(
+            ex.landmarks,
+            matched.tracks,
+            anchors,
+            anchor_stamps,
+            path_along(*scans),
+            cfg,
+            across,
+            matched.pairs,
+            polarity=polarity,
+        )
+    return _TrackTerms(across, polarity, seq)
+
+
+def _factors(
+    ex: _Extracted, matched: _Matched, terms: _TrackTerms
+) -> tuple[list[LoopConstraint], SequentialFactors | None]:
+    """Loop factors of the kept loops, then the sequential factors of the tracks; across the
+    axis, every factor takes the spread measured on the tracks (``terms``)."""
+    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     cell_z_m = ex.landmarks[0].cell_z_m if ex.landmarks else 0.0
     constraints = [
-        replace(c, sigma_transverse_m=across)
+        replace(c, sigma_transverse_m=terms.across)
         for c in _constraints(
-            matched.results, matched.keep, anchor_stamps, cell_z_m, at_ribs(polarity)
+            matched.results, matched.keep, anchor_stamps, cell_z_m, at_ribs(terms.polarity)
         )
     ]
-    if not cfg.graph.sequential:
+    if terms.seq is None:
         return constraints, None
-    seq = sequential_constraints(
-        ex.landmarks,
-        matched.tracks,
-        anchors,
-        anchor_stamps,
-        path_along(*scans),
-        cfg,
-        across,
-        matched.pairs,
-        polarity=polarity,
-    )
-    return constraints + seq.constraints, seq
+    return constraints + terms.seq.constraints, terms.seq
 
 
 def _optimise(
@@ -496,8 +519,10 @@ def _solve(
     and, if any became loops, factors and optimisation again (stage 3b); then, one at a
     time, loops the optimised graph cannot satisfy dropped (:mod:`decod_rs.residuals`)."""
 
+    terms = _track_terms(ex, matched, cfg, scans) if loops else None
+
     def solve(matched: _Matched) -> _Solved:
-        constraints, seq = _factors(ex, matched, cfg, scans) if loops else ([], None)
+        constraints, seq = ([], None) if terms is None else _factors(ex, matched, terms)
         optimised = _optimise(scans, ex, matched.split, constraints, seq, cfg, gap_factors)
         return _Solved(constraints, seq, *optimised)
 
