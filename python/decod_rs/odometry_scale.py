@@ -24,7 +24,11 @@ the weighted least-squares solution of
   and extrapolated their local scale into the gaps (horseshoe 1.10 -> 0.45 m, worse than the
   0.20 m without rescaling); 0.1 %/m: horseshoe 0.16, shield 0.10 (0.23 without), hume with
   uneven drift 0.36 (1.12 without, odometry 1.31);
-- a weak prior ``s_k = 1`` (sigma 1), which only matters where nothing else does.
+- a weak prior ``s_k = 1`` on the pass's scale as a whole (sigma 1: each of the ``n``
+  interval rows weighs ``1 / sqrt(n)``), which only matters where nothing else does. It
+  was sigma 1 per interval, i.e. ``1 / sqrt(n)`` on the pass's scale: with a pe coupler
+  tracked in two or three pairs it pulled a measured return scale of 1.179 +- 0.033 to
+  1.164 (88 intervals), 1.3 points of a pass the odometry under-reported by 15 %.
 
 The scan odometry is then rescaled along the pass direction (rotations unchanged) and the
 pose graph starts from it. Scales are clipped to [0.5, 2]: a frontend that stalls (KISS-ICP
@@ -122,7 +126,7 @@ def _pass_scales(
         row[k] = 1.0
         rows.append(row)
         rhs.append(1.0)
-        weights.append(1.0)
+        weights.append(1.0 / np.sqrt(n))  # sigma 1 on the pass's scale (module docs)
     w = np.asarray(weights)
     a_mat = np.asarray(rows) * w[:, None]
     scales, *_ = np.linalg.lstsq(a_mat, np.asarray(rhs) * w, rcond=None)
