@@ -624,7 +624,8 @@ def _write(
             correction.poses,
         )
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
-    joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split)
+    same = float(cfg.matching.duplicate_radius_m)
+    joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split, same)
     survey_ids = None if stage is None else stage.survey_ids(joint_of)
     write_joints_csv(out / "joints.csv", joints, survey_ids)
     write_run_survey(

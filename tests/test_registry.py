@@ -1,0 +1,59 @@
+"""The joint registry merges the groups of one physical boundary by place, strongest first,
+and never chains nearby features into one row (decod_rs.joints)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from decod_rs.joints import joint_registry
+
+
+def _views(chainages: list[float]) -> list[Any]:
+    # joint_registry reads a landmark's stamp and origin (to find the loops' views) only.
+    return [
+        SimpleNamespace(submap_stamp=float(k), origin=np.array([c, 0.0, 0.0]))
+        for k, c in enumerate(chainages)
+    ]
+
+
+def _loop(q: Any, d: Any) -> Any:
+    return SimpleNamespace(
+        query_stamp=q.submap_stamp,
+        query_origin=q.origin,
+        candidate_stamp=d.submap_stamp,
+        candidate_origin=d.origin,
+    )
+
+
+def test_unlinked_tracks_of_one_joint_become_one_row() -> None:
+    # A joint at 10 m: a confirmed outbound/return pair (tracks 0 and 1, three views) and
+    # two single-view tracks the descriptor could not link (2 cm and 15 cm away); another
+    # joint 1.2 m further on, seen twice in one track.
+    chain = np.array([10.00, 10.01, 10.02, 10.02, 10.15, 11.20, 11.21])
+    tracks = np.array([0, 0, 1, 2, 3, 4, 4])
+    lms = _views(chain.tolist())
+    joints, joint_of = joint_registry(lms, tracks, [_loop(lms[2], lms[0])], chain, 50.0, 0.3)
+    assert [j.views for j in joints] == [5, 2]
+    assert [j.tracks for j in joints] == [4, 1]
+    assert [j.loop_confirmed for j in joints] == [True, False]
+    assert joints[0].chainage_m == 10.02 and joints[1].chainage_m == pytest.approx(11.205)
+    assert joint_of.tolist() == [0, 0, 0, 0, 0, 1, 1]
+    # Radius 0: one row per loop-joined group, as the tracks left them.
+    alone, _ = joint_registry(lms, tracks, [_loop(lms[2], lms[0])], chain, 50.0, 0.0)
+    assert len(alone) == 4
+
+
+def test_nearby_features_do_not_chain_into_one_row() -> None:
+    # Single views every 0.25 m with radius 0.3: single linkage would make one row of all
+    # of them; the strongest (the two-view track at 11.0) takes its neighbours at +-0.25 m,
+    # then 10.25 takes 10.5 and 11.5 takes 11.75.
+    chain = np.array([10.25, 10.5, 10.75, 11.0, 11.0, 11.25, 11.5, 11.75])
+    tracks = np.array([0, 1, 2, 3, 3, 4, 5, 6])
+    joints, _ = joint_registry(_views(chain.tolist()), tracks, [], chain, None, 0.3)
+    rows = [(j.chainage_m, j.views) for j in joints]
+    assert rows == [(10.375, 2), (11.0, 4), (11.625, 2)]
+    assert all(j.passes == 1 for j in joints)
