@@ -60,7 +60,7 @@ def test_mismatched_inputs_are_refused() -> None:
         travel_disagreement_m(_straight(STAMPS, 1.0), _straight(STAMPS, 1.0), 0)
 
 
-def test_the_rebuilt_submaps_stand_only_if_they_close_more_loops() -> None:
+def test_the_rebuilt_submaps_stand_if_they_measure_more_passes_or_close_more_loops() -> None:
     from dataclasses import replace
 
     from decod_rs.refinement import keep_rebuilt
@@ -70,6 +70,13 @@ def test_the_rebuilt_submaps_stand_only_if_they_close_more_loops() -> None:
     assert decision.needed and not decision.kept  # not rebuilt yet
     assert replace(decision, loops=(4, 47)).report()["kept"] is True
     assert replace(decision, loops=(38, 37)).report()["kept"] is False
+    # A round that measured both passes' scales beats one that left a pass at the odometry's
+    # drift, whatever the loops (pe, 16 beams, uneven: 4 loops with the return unmeasured
+    # against 2 with it measured); with as many passes measured, the loops decide.
+    assert keep_rebuilt(4, 2, 1, 2) and not keep_rebuilt(2, 4, 2, 1)
+    assert keep_rebuilt(4, 4, 2, 2) and not keep_rebuilt(4, 3, 2, 2)
+    measured = replace(decision, loops=(4, 2), rescaled=(1, 2)).report()
+    assert measured["kept"] is True and measured["rescaled_passes_first_and_rebuilt"] == [1, 2]
 
 
 def test_a_rebuilt_round_tracks_boundaries_in_the_corrected_frame(tmp_path: Path) -> None:

@@ -564,6 +564,11 @@ def _rebuild(
     return ex
 
 
+def _rescaled_passes(solved: _Solved) -> int:
+    """How many passes of a round had their scale measured and applied."""
+    return 0 if solved.scale is None else sum(bool(p["rescaled"]) for p in solved.scale.passes)
+
+
 def _rebuilt(
     extraction: Extracted,
     ex: _Extracted,
@@ -583,7 +588,11 @@ def _rebuilt(
     ex2 = _rebuild(extraction, cfg, solved.correction.poses, progress)
     matched2 = _match_and_select(ex2, cfg, mode, *scans, link_frame=solved.correction.poses)
     matched2, solved2 = _solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
-    decision = replace(decision, loops=(sum(matched.keep), sum(matched2.keep)))
+    decision = replace(
+        decision,
+        loops=(sum(matched.keep), sum(matched2.keep)),
+        rescaled=(_rescaled_passes(solved), _rescaled_passes(solved2)),
+    )
     if decision.kept:
         return ex2, matched2, solved2, decision
     return ex, matched, solved, decision

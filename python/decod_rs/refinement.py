@@ -26,11 +26,17 @@ odometry (only which views belong together changes), the return's scale is measu
 40 pairs), and the last metres, where no loop closes, get it too (endpoint 0.02 m).
 
 The corrected trajectory is not better everywhere: far from any loop it can stitch worse than
-the odometry. The number of loops that survive the whole selection measures how well the two
-passes' submaps agree, so the rebuilt submaps replace the first ones unless they close fewer
-loops (:func:`keep_rebuilt`); then the first round stands. (Ties go to the rebuilt submaps:
-requiring strictly more loops kept one first-round loop 0.34 m off in the matrix, and one
-more pe run ended above the odometry's RMSE.)
+the odometry. So the rounds are compared (:func:`keep_rebuilt`), first by how many passes
+had their scale measured and applied (:mod:`decod_rs.odometry_scale`), then by the loops
+that survive the whole selection (how well the two passes' submaps agree); the rebuilt
+submaps replace the first ones unless they lose on that order. A pass whose scale is not
+measured keeps the odometry's drift wherever no loop reaches, and loops are few exactly
+where that matters: in the matrix's pe pipe with 16 beams and uneven drift the first round
+closed 4 loops with the return unmeasured (its odometry 15 % short: endpoint 3.2 -> 2.1 m),
+the rebuilt round 2 with the return measured at 1.18 (true 1.176), and the loop count kept
+the first. (Loop ties go to the rebuilt submaps: requiring strictly more loops kept one
+first-round loop 0.34 m off in the matrix, and one more pe run ended above the odometry's
+RMSE.)
 
 A re-inspection (``decod run --survey``) does not rebuild: its change report compares its
 descriptors with the survey's, stitched on the survey's own odometry, and a second stitching
@@ -99,25 +105,32 @@ class RebuildDecision:
     disagreement_m: float
     threshold_m: float
     loops: tuple[int, int] | None = None
+    rescaled: tuple[int, int] = (0, 0)
 
     @property
     def kept(self) -> bool:
         """Whether the rebuilt submaps replace the first ones (:func:`keep_rebuilt`)."""
-        return self.loops is not None and keep_rebuilt(*self.loops)
+        return self.loops is not None and keep_rebuilt(*self.loops, *self.rescaled)
 
     def report(self) -> dict[str, Any]:
         return {
             "rebuilt": self.needed,
             "kept": self.kept,
             "loops_first_and_rebuilt": None if self.loops is None else list(self.loops),
+            "rescaled_passes_first_and_rebuilt": None
+            if self.loops is None
+            else list(self.rescaled),
             "travel_disagreement_m": self.disagreement_m,
             "threshold_m": self.threshold_m,
         }
 
 
-def keep_rebuilt(first_loops: int, rebuilt_loops: int) -> bool:
-    """The rebuilt submaps are kept unless they close fewer loops than the first ones."""
-    return rebuilt_loops >= first_loops
+def keep_rebuilt(
+    first_loops: int, rebuilt_loops: int, first_rescaled: int = 0, rebuilt_rescaled: int = 0
+) -> bool:
+    """The rebuilt submaps are kept unless they measure fewer passes' scales than the first
+    ones or, measuring as many, close fewer loops (module docs)."""
+    return (rebuilt_rescaled, rebuilt_loops) >= (first_rescaled, first_loops)
 
 
 def rebuild_decision(odometry: FloatArray, corrected: FloatArray, cfg: Any) -> RebuildDecision:
