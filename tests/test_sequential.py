@@ -74,6 +74,14 @@ def test_joint_registry_lists_each_confirmed_joint(uneven: Path, tmp_path: Path)
     errors = [np.min(np.abs(confirmed - c)) for c in chainages]
     within = [e <= 0.02 * c + 0.05 for e, c in zip(errors, chainages, strict=True)]
     assert np.mean(within) >= 0.8, list(zip(chainages.round(2), np.round(errors, 3), strict=True))
+    # One row per physical boundary: no two rows closer than the same-boundary radius of
+    # this pipe (0.1 m; before the merge by place, a joint's unlinked tracks were rows of
+    # their own, millimetres apart), and one row at nearly every joint (a wall feature
+    # 0.1-0.15 m from a joint may add a second).
+    every = np.sort([float(r["chainage_m"]) for r in rows])
+    assert np.diff(every).min() > 0.09
+    at_joint = [int(np.sum(np.abs(every - c) <= 0.15)) for c in chainages]
+    assert min(at_joint) >= 1 and np.mean(np.array(at_joint) == 1) >= 0.75, at_joint
     with (tmp_path / "run" / "landmarks.csv").open() as fh:
         landmarks = list(csv.DictReader(fh))
     assert all(int(lm["track_id"]) >= 0 and int(lm["joint_id"]) >= 0 for lm in landmarks)
