@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from decod_rs.commands.run import print_unmeasured
+from decod_rs.commands.run import print_joints, print_unmeasured
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.run_files import LOOPS_COLUMNS
@@ -44,7 +44,9 @@ def hume(module_dir: Path) -> Path:
     return _simulate(module_dir / "hume", scene="hume", seed=11, drift=2.5)
 
 
-def test_hume_pipe_loops_are_precise_and_remove_the_drift(hume: Path, tmp_path: Path) -> None:
+def test_hume_pipe_loops_are_precise_and_remove_the_drift(
+    hume: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     result = _run(hume, tmp_path / "run", "pipe")
     fine = result["loops"]["fine"]
     assert fine["accepted"] >= 5, fine
@@ -66,6 +68,15 @@ def test_hume_pipe_loops_are_precise_and_remove_the_drift(hume: Path, tmp_path: 
     assert set(report["timings_s"]) >= {"extract", "match", "optimise", "write"}
     assert "EDGE_DECOD_LANDMARK5" in (tmp_path / "run" / "graph.g2o").read_text()
     assert (tmp_path / "run" / "trajectory.png").stat().st_size > 10_000
+    # The summary's registry line counts the rows of joints.csv that a loop confirmed.
+    with (tmp_path / "run" / "joints.csv").open() as fh:
+        joints = list(csv.DictReader(fh))
+    confirmed = sum(j["loop_confirmed"] == "1" for j in joints)
+    assert confirmed >= 5
+    capsys.readouterr()
+    print_joints(tmp_path / "run")
+    line = capsys.readouterr().out
+    assert line.startswith(f"joints         {len(joints)} in joints.csv: {confirmed} loop-")
 
 
 def test_disabled_loops_return_the_odometry_unchanged(

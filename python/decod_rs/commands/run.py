@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 from pathlib import Path
@@ -132,12 +133,28 @@ def run(args: argparse.Namespace) -> int:
         survey=args.survey,
     )
     print_summary(summary)
+    print_joints(args.out)
     print_unmeasured(args.out)
     if args.survey is not None:
         print_survey(args.out)
     if args.map:
         print_map(args.out)
     return 0
+
+
+def print_joints(out: Path) -> None:
+    """The joint registry (``joints.csv``) in one line: its rows, how many a loop confirmed,
+    how many both passes saw, and how many are a single unconfirmed view (wall features
+    more often than joints: filter on ``views`` and ``loop_confirmed``)."""
+    with (out / "joints.csv").open(encoding="utf-8", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    confirmed = sum(r["loop_confirmed"] == "1" for r in rows)
+    both = sum(int(r["passes"]) >= 2 for r in rows)
+    once = sum(int(r["views"]) == 1 and r["loop_confirmed"] != "1" for r in rows)
+    print(
+        f"joints         {len(rows)} in joints.csv: {confirmed} loop-confirmed, "
+        f"{both} seen on both passes, {once} a single unconfirmed view"
+    )
 
 
 def print_unmeasured(out: Path) -> None:
