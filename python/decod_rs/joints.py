@@ -168,7 +168,7 @@ def joint_registry(
     loops: Sequence[QueryResult],
     chainage_m: FloatArray,
     split_stamp: float | None,
-    radius_m: float = 0.0,
+    radius_m: float,
 ) -> tuple[list[Joint], NDArray[np.int64]]:
     """The registry and each landmark's joint id; ``loops``: the accepted loops only;
     ``radius_m``: the same-boundary radius (module docs; 0 merges nothing by place)."""
@@ -177,17 +177,18 @@ def joint_registry(
     strong = [(bool(set(tracks[g].tolist()) & confirmed), int(g.size)) for g in groups]
     boundaries = _merge_by_place(groups, chainage_m, strong, radius_m) if groups else []
     stamps = np.array([lm.submap_stamp for lm in landmarks])
-    rows = sorted(boundaries, key=lambda idx: (float(np.median(chainage_m[idx])), int(idx[0])))
+    placed = [(float(np.median(chainage_m[idx])), idx) for idx in boundaries]
+    placed.sort(key=lambda row: (row[0], int(row[1][0])))
     joint_of = np.empty(len(landmarks), dtype=np.int64)
     joints = []
-    for jid, idx in enumerate(rows):
+    for jid, (chain, idx) in enumerate(placed):
         joint_of[idx] = jid
         members = set(tracks[idx].tolist())
         seen = {0 if split_stamp is None or s <= split_stamp else 1 for s in stamps[idx]}
         joints.append(
             Joint(
                 joint_id=jid,
-                chainage_m=float(np.median(chainage_m[idx])),
+                chainage_m=chain,
                 views=int(idx.size),
                 tracks=len(members),
                 passes=len(seen),
