@@ -146,28 +146,28 @@ def test_interrupted_run_never_looks_finished(
     sim: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     out = tmp_path / "out"
-    real_write = decod_rs.pipeline._write
+    real_write = decod_rs.pipeline.write_outputs
 
     def write_then_fail(*args: object, **kwargs: object) -> object:
         real_write(*args, **kwargs)  # type: ignore[arg-type]
         raise KeyboardInterrupt  # Ctrl-C after the CSV files, before report.json
 
-    monkeypatch.setattr(decod_rs.pipeline, "_write", write_then_fail)
+    monkeypatch.setattr(decod_rs.pipeline, "write_outputs", write_then_fail)
     with pytest.raises(KeyboardInterrupt):
         _run(sim / "log", out)
     partial = tmp_path / "out.partial"
     assert not out.exists() and (partial / "loops.csv").is_file()
     assert not (partial / "report.json").exists()
     # Over an earlier complete run (and a file of the user's): untouched until the end.
-    monkeypatch.setattr(decod_rs.pipeline, "_write", real_write)
+    monkeypatch.setattr(decod_rs.pipeline, "write_outputs", real_write)
     first = _run(sim / "log", out)
     assert not partial.exists()
     (out / "notes.txt").write_text("mine")
-    monkeypatch.setattr(decod_rs.pipeline, "_write", write_then_fail)
+    monkeypatch.setattr(decod_rs.pipeline, "write_outputs", write_then_fail)
     with pytest.raises(KeyboardInterrupt):
         _run(sim / "log", out)
     assert json.loads((out / "report.json").read_text(encoding="utf-8")) == first
-    monkeypatch.setattr(decod_rs.pipeline, "_write", real_write)
+    monkeypatch.setattr(decod_rs.pipeline, "write_outputs", real_write)
     _run(sim / "log", out)
     assert (out / "notes.txt").read_text() == "mine" and not partial.exists()
     shutil.rmtree(out)

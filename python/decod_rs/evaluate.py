@@ -363,12 +363,7 @@ def evaluate_run(
     report: dict[str, Any] = {}
     if (run / "report.json").exists():
         report = json.loads((run / "report.json").read_text(encoding="utf-8"))
-    joints = None
-    if joints_path is not None:
-        doc = json.loads(Path(joints_path).read_text(encoding="utf-8"))
-        if "joints_x_m" not in doc:
-            raise ValueError(f"{joints_path}: no `joints_x_m` list")
-        joints = np.asarray(doc["joints_x_m"], dtype=np.float64)
+    joints = None if joints_path is None else _read_joints(Path(joints_path))
     preset = preset or _find_key(report, "preset") or "tunnel"
     if preset == "auto":
         preset = (report.get("auto") or {}).get("corridor", "tunnel")
@@ -402,18 +397,43 @@ def evaluate_run(
         result["pr_curve"][name] = pr_curve(
             loops, gt_stamps, gt_poses, tol, gate, m["common_queries"]
         )
-    result["loop_rows"] = [
+    result["loop_rows"] = _loop_rows(loops, axial, lateral)
+    result["trajectory"], errors = _trajectory_section(run, gt_stamps, gt_poses, align)
+    return result, errors
+
+
+def _read_joints(path: Path) -> FloatArray:
+    """The true joint positions along the corridor (``joints.json``'s ``joints_x_m``)."""
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    if "joints_x_m" not in doc:
+        raise ValueError(f"{path}: no `joints_x_m` list")
+    return np.asarray(doc["joints_x_m"], dtype=np.float64)
+
+
+def _loop_rows(loops: LoopTable, axial: FloatArray, lateral: FloatArray) -> list[dict[str, Any]]:
+    """One row per query: its stamps, inliers, whether it was kept and its true errors."""
+
+    def finite(v: float) -> float | None:
+        return float(v) if np.isfinite(v) else None
+
+    return [
         {
             "query_stamp": float(loops.query_stamp[r]),
-            "db_stamp": float(loops.db_stamp[r]) if np.isfinite(loops.db_stamp[r]) else None,
+            "db_stamp": finite(loops.db_stamp[r]),
             "inliers": int(loops.inliers[r]),
             "accepted": bool(loops.accepted[r]),
-            "axial_error_m": float(axial[r]) if np.isfinite(axial[r]) else None,
-            "lateral_offset_m": float(lateral[r]) if np.isfinite(lateral[r]) else None,
+            "axial_error_m": finite(axial[r]),
+            "lateral_offset_m": finite(lateral[r]),
         }
         for r in range(len(loops))
     ]
 
+
+def _trajectory_section(
+    run: Path, gt_stamps: FloatArray, gt_poses: FloatArray, align: bool
+) -> tuple[dict[str, Any], dict[str, TrajectoryMetrics]]:
+    """The odometry's and the corrected trajectory's errors against ground truth, and the
+    reductions of the RMSE and the endpoint error."""
     errors: dict[str, TrajectoryMetrics] = {}
     traj: dict[str, Any] = {"aligned": align}
     for name in ("odometry", "corrected"):
@@ -426,8 +446,7 @@ def evaluate_run(
     traj["endpoint_reduction_percent"] = _reduction(
         errors["odometry"].endpoint_m, errors["corrected"].endpoint_m
     )
-    result["trajectory"] = traj
-    return result, errors
+    return traj, errors
 
 
 def _pct(v: float | None) -> str:

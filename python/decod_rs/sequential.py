@@ -44,7 +44,7 @@ consecutive views of one arch (exact poses, 0.25 m rows), ``dz`` averaged +1.0 c
 pair against +0.4 cm from the origins alone (217 pairs), and the tracks read it as 0.6 % of
 odometry scale. So there, an offset within half a row of 0 is taken as 0: the two views
 are of the same feature, and the side-lobe rule (``src/boundary.rs``) places both origins
-to about 1 cm. The loop factors do the same at ribs (``pipeline._constraints``: the
+to about 1 cm. The loop factors do the same at ribs (``stages.solve.loop_constraints``: the
 horseshoe with the forward sensor and a turn, 85 -> 90 % of RMSE reduction, no loop lost or
 wrong in the matrix's horseshoe cells). At grooves (pipe joints, ring seams) the offset is
 kept. In the pipes a row is 2-3 cm, and its sub-cell part is worth more than the origins:

@@ -3,7 +3,7 @@
 :func:`extract_log` is ``run_log`` up to and including stage 1 (configure, extract);
 :func:`run_from_extraction` replays stages 2-4 (match and select, factors, optimise, write,
 report) with any config whose extraction sections equal the extraction's. Both call the
-stage functions of :mod:`decod_rs.pipeline` in ``run_log``'s order, so a replay at a
+stage functions of :mod:`decod_rs.stages` in ``run_log``'s order, so a replay at a
 setting writes the files a ``decod run --config`` at that setting writes.
 """
 
@@ -23,17 +23,9 @@ from decod_rs.batch.jobs import RunOptions
 from decod_rs.config import Config
 from decod_rs.ingest import StreamHealth, ingest_section
 from decod_rs.io import find_imu_topic
-from decod_rs.pipeline import (
-    MODES,
-    Extracted,
-    RunSummary,
-    Visuals,
-    _configure,
-    _extract,
-    _Extracted,
-    finish_run,
-)
+from decod_rs.pipeline import MODES, Extracted, RunSummary, Visuals, finish_run
 from decod_rs.run_files import staged_run_dir
+from decod_rs.stages.extract import SubmapLandmarks, configure, extract, scan_odometry
 
 FloatArray = NDArray[np.float64]
 
@@ -50,7 +42,7 @@ class Extraction:
     log: Path
     options: RunOptions
     processor: _core.LogProcessor
-    extracted: _Extracted
+    extracted: SubmapLandmarks
     scans: tuple[FloatArray, FloatArray]
     base_cfg: Config
     cfg: Config
@@ -74,16 +66,13 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
         imu_topic = find_imu_topic(log)
     topics = (options.points_topic, options.odom_topic, options.odom_tum, imu_topic)
     t0 = time.perf_counter()
-    base, auto, imu = _configure(log, options.preset, options.config, topics, options.sequential)
+    base, auto, imu = configure(log, options.preset, options.config, topics, options.sequential)
     cfg = apply_params(base, params) if params else base
     configure_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    processor, extracted = _extract(log, cfg, *topics, False, keep_map=options.map, imu_samples=imu)
+    processor, extracted = extract(log, cfg, *topics, False, keep_map=options.map, imu_samples=imu)
     extract_s = time.perf_counter() - t0
-    scans = (
-        np.asarray(processor.scan_stamps(), dtype=np.float64),
-        np.asarray(processor.scan_poses(), dtype=np.float64),
-    )
+    scans = scan_odometry(processor)
     if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
     timings = {"configure": configure_s, "extract": extract_s}

@@ -445,6 +445,72 @@ def _kiss_summary(
     }
 
 
+def _write_truth(
+    out: Path,
+    sim: Simulation,
+    stream: _Stream,
+    kiss: KissOdometry | None,
+    *,
+    ros1: bool,
+    livox: bool,
+) -> float:
+    """``gt.tum``, ``odom.tum`` and ``joints.json`` (the scene's metadata, the files and topics
+    written, KISS-ICP's summary) beside the log; returns the odometry's endpoint error (m)."""
+    write_tum(out / "gt.tum", sim.stamps_ns, sim.gt_poses)
+    write_tum(out / "odom.tum", sim.stamps_ns, stream.odom_poses)
+    endpoint = float(np.linalg.norm(stream.odom_poses[-1, :3, 3] - sim.gt_poses[-1, :3, 3]))
+    meta = sim.metadata()
+    if kiss is not None:
+        meta["odometry"] = _kiss_summary(kiss, stream.odom_poses, sim.gt_poses, endpoint)
+    meta["files"] = {"log": LOG_DIRNAME, "gt": "gt.tum", "odom": "odom.tum"}
+    if ros1:
+        meta["files"]["ros1_bag"] = ROS1_BAG_NAME
+    if livox:
+        meta["topics"]["/livox/lidar"] = "livox_ros_driver2/msg/CustomMsg (same points, body)"
+    write_json(out / "joints.json", meta)
+    return endpoint
+
+
+def _sim_result(
+    out: Path,
+    scene: str,
+    sim: Simulation,
+    stream: _Stream,
+    endpoint: float,
+    times: tuple[float, float],
+) -> SimResult:
+    """What :func:`simulate` wrote into ``out``, its sizes and where its time went (``times``:
+    the start and the seconds spent setting up)."""
+    t_start, t_setup = times
+    log_dir = out / LOG_DIRNAME
+    gt_tum, odom_tum, joints = out / "gt.tum", out / "odom.tum", out / "joints.json"
+    mcaps = sorted(log_dir.glob("*.mcap"))
+    size = sum(f.stat().st_size for f in log_dir.iterdir())
+    total = time.perf_counter() - t_start
+    return SimResult(
+        out_dir=out,
+        log_dir=log_dir,
+        mcap_path=mcaps[0] if mcaps else log_dir,
+        gt_tum=gt_tum,
+        odom_tum=odom_tum,
+        joints_json=joints,
+        scene=scene,
+        sensor=sim.sensor.name,
+        n_scans=sim.n_scans,
+        n_points=stream.n_points,
+        n_imu=stream.n_imu,
+        n_joints=int(sim.scene.joints_x_m.size),
+        duration_s=float(sim.t_s[-1]),
+        endpoint_error_m=endpoint,
+        log_size_bytes=size,
+        time_total_s=total,
+        time_setup_s=t_setup,
+        time_scans_s=stream.t_scans,
+        time_write_s=total - t_setup - stream.t_scans - stream.t_odom,
+        time_odometry_s=stream.t_odom,
+    )
+
+
 def simulate(
     scene: str,
     out_dir: Path | str,
@@ -515,43 +581,5 @@ def simulate(
         if ros1:
             writers.append(stack.enter_context(Ros1Writer(bag_path, livox=livox)))
         stream = _write_stream(sim, _Fanout(writers), kiss, progress, f"simulate {scene}")
-    gt_tum = out / "gt.tum"
-    odom_tum = out / "odom.tum"
-    joints = out / "joints.json"
-    write_tum(gt_tum, sim.stamps_ns, sim.gt_poses)
-    write_tum(odom_tum, sim.stamps_ns, stream.odom_poses)
-    endpoint = float(np.linalg.norm(stream.odom_poses[-1, :3, 3] - sim.gt_poses[-1, :3, 3]))
-    meta = sim.metadata()
-    if kiss is not None:
-        meta["odometry"] = _kiss_summary(kiss, stream.odom_poses, sim.gt_poses, endpoint)
-    meta["files"] = {"log": LOG_DIRNAME, "gt": gt_tum.name, "odom": odom_tum.name}
-    if ros1:
-        meta["files"]["ros1_bag"] = ROS1_BAG_NAME
-    if livox:
-        meta["topics"]["/livox/lidar"] = "livox_ros_driver2/msg/CustomMsg (same points, body)"
-    write_json(joints, meta)
-    mcaps = sorted(log_dir.glob("*.mcap"))
-    size = sum(f.stat().st_size for f in log_dir.iterdir())
-    total = time.perf_counter() - t_start
-    return SimResult(
-        out_dir=out,
-        log_dir=log_dir,
-        mcap_path=mcaps[0] if mcaps else log_dir,
-        gt_tum=gt_tum,
-        odom_tum=odom_tum,
-        joints_json=joints,
-        scene=scene,
-        sensor=sim.sensor.name,
-        n_scans=sim.n_scans,
-        n_points=stream.n_points,
-        n_imu=stream.n_imu,
-        n_joints=int(sim.scene.joints_x_m.size),
-        duration_s=float(sim.t_s[-1]),
-        endpoint_error_m=endpoint,
-        log_size_bytes=size,
-        time_total_s=total,
-        time_setup_s=t_setup,
-        time_scans_s=stream.t_scans,
-        time_write_s=total - t_setup - stream.t_scans - stream.t_odom,
-        time_odometry_s=stream.t_odom,
-    )
+    endpoint = _write_truth(out, sim, stream, kiss, ros1=ros1, livox=livox)
+    return _sim_result(out, scene, sim, stream, endpoint, (t_start, t_setup))

@@ -324,8 +324,51 @@ def build_horseshoe(
     spacing = p["arch_spacing_m"]
     jitter = 0.0 if identical else p["arch_spacing_jitter_m"] * distinct
     joints = _joint_positions(rng, p["first_joint_x_m"], spacing, x_max, jitter)
-    n_t = 1024
-    th = theta_grid(n_t)
+    arches = _horseshoe_arches(rng, p, joints, distinct, identical)
+    coarse, fine = _rock_roughness(rng, p, x_min, x_max, joints, identical)
+    offset = p["rock_offset_m"]
+
+    def rock_base(x: F64, theta: F64) -> F64:
+        return np.full(np.broadcast(x, theta).shape, offset)
+
+    floor = _floor_texture(
+        rng,
+        x_min,
+        x_max,
+        p["floor_roughness_m"],
+        0.1,
+        spacing if identical else None,
+        joints[0],
+        radius,
+    )
+    p["identical_joints"] = identical
+    return Scene(
+        name="horseshoe",
+        radius_m=radius,
+        floor_z_m=p["floor_z_m"],
+        x_min_m=x_min,
+        x_max_m=x_max,
+        joints_x_m=joints,
+        range_noise_m=p["range_noise_m"],
+        wall_terms=[rock_base, coarse, fine],
+        floor_terms=[floor],
+        arches=arches,
+        reflectivity={KIND_WALL: 25.0, KIND_FLOOR: 20.0, KIND_CAP: 25.0, KIND_ARCH: 120.0},
+        params=p,
+    )
+
+
+def _horseshoe_arches(
+    rng: np.random.Generator,
+    p: dict[str, Any],
+    joints: F64,
+    distinct: float,
+    identical: bool,
+) -> ArchSet:
+    """The horseshoe's steel arches at ``joints``: each tilted, waved and deformed by its own
+    draw (``distinct`` scales them), or all one draw when ``identical``."""
+    radius = p["radius_m"]
+    th = theta_grid(1024)
 
     def one_arch(g: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         a, b = g.normal(0.0, p["arch_tilt_m"] * distinct, 2)
@@ -340,14 +383,27 @@ def build_horseshoe(
         arch_data = [(r0, s0) for _ in joints]
     else:
         arch_data = [one_arch(rng) for _ in joints]
-    arches = ArchSet(
+    return ArchSet(
         centres=joints,
         half_width=0.5 * p["arch_width_m"],
         inner_radius=np.stack([a for a, _ in arch_data]),
         shift=np.stack([s for _, s in arch_data]),
         nominal_inner_radius=radius,
     )
-    period = spacing if identical else None
+
+
+def _rock_roughness(
+    rng: np.random.Generator,
+    p: dict[str, Any],
+    x_min: float,
+    x_max: float,
+    joints: F64,
+    identical: bool,
+) -> tuple[Grid2D, Grid2D]:
+    """The rock's overbreak (coarse, 0.1 m cells) and fine roughness (0.025 m), periodic with
+    the arch spacing from the first joint when ``identical``."""
+    period = p["arch_spacing_m"] if identical else None
+    radius = p["radius_m"]
     coarse = _roughness(
         rng,
         x_min,
@@ -373,26 +429,4 @@ def build_horseshoe(
     if identical:
         coarse = Grid2D(joints[0], coarse.du, coarse.v0, coarse.dv, coarse.values, True, True)
         fine = Grid2D(joints[0], fine.du, fine.v0, fine.dv, fine.values, True, True)
-    offset = p["rock_offset_m"]
-
-    def rock_base(x: F64, theta: F64) -> F64:
-        return np.full(np.broadcast(x, theta).shape, offset)
-
-    floor = _floor_texture(
-        rng, x_min, x_max, p["floor_roughness_m"], 0.1, period, joints[0], radius
-    )
-    p["identical_joints"] = identical
-    return Scene(
-        name="horseshoe",
-        radius_m=radius,
-        floor_z_m=p["floor_z_m"],
-        x_min_m=x_min,
-        x_max_m=x_max,
-        joints_x_m=joints,
-        range_noise_m=p["range_noise_m"],
-        wall_terms=[rock_base, coarse, fine],
-        floor_terms=[floor],
-        arches=arches,
-        reflectivity={KIND_WALL: 25.0, KIND_FLOOR: 20.0, KIND_CAP: 25.0, KIND_ARCH: 120.0},
-        params=p,
-    )
+    return coarse, fine

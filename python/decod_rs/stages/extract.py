@@ -1,0 +1,149 @@
+"""Stage 1 of Algorithm 1 (paper Sec. III-A, III-B): the config (measured by ``auto`` or a
+preset), then the Rust ``LogProcessor`` streaming the log into submaps and landmarks a few
+submaps at a time (memory bounded by the submaps in flight)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs import _core
+from decod_rs._core import Landmark
+from decod_rs.autoscale import auto_config, probe_corridor
+from decod_rs.config import Config, load_config
+from decod_rs.ingest import StreamHealth, ingest_section, warn_once
+from decod_rs.progress import Progress
+from decod_rs.survey import Survey, survey_config
+
+FloatArray = NDArray[np.float64]
+#: A run's topics: points, odometry, odometry TUM file, IMU (None: found or not used).
+Topics = tuple[str | None, str | None, Path | None, str | None]
+
+
+@dataclass
+class SubmapLandmarks:
+    """What the submaps of a log gave: their anchors (stamp, world pose in the odometry
+    frame), their landmarks, and every extraction rejection (counts by kind, messages)."""
+
+    anchor_stamps: list[float] = field(default_factory=list)
+    anchor_poses: list[FloatArray] = field(default_factory=list)
+    landmarks: list[Landmark] = field(default_factory=list)
+    rejections: dict[str, int] = field(default_factory=dict)
+    rejection_messages: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Extracted:
+    """Stage 1's result, what stages 2-5 need: the log, the processor that streamed it (its
+    voxel map, its skip lists), the landmarks and anchors, and the scan odometry."""
+
+    log: Path
+    processor: _core.LogProcessor
+    extracted: SubmapLandmarks
+    scans: tuple[FloatArray, FloatArray]
+    gap_factors: FloatArray | None = None
+    imu_topic: str | None = None
+
+
+def configure(
+    log: Path,
+    preset: str,
+    config_path: str | Path | None,
+    topics: Topics,
+    sequential: bool | None,
+    survey: Survey | None = None,
+) -> tuple[Config, dict[str, Any] | None, FloatArray | None]:
+    """The config: measured and derived (``auto``) or a preset, plus the user's TOML; with a
+    survey and neither a preset nor a TOML, the survey's own (same grid and matcher). Also
+    the IMU samples the ``auto`` probe read, if it read any (for the extraction)."""
+    auto: dict[str, Any] | None = None
+    imu: FloatArray | None = None
+    if survey is not None and preset == "auto" and config_path is None:
+        cfg = survey_config(survey)
+    elif preset == "auto":
+        probe, imu = probe_corridor(log, *topics)
+        cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
+    else:
+        cfg = load_config(config_path, preset)
+    if sequential is not None:
+        values = cfg.to_dict()
+        values["graph"]["sequential"] = bool(sequential)
+        cfg = Config(values)
+    return cfg, auto, imu
+
+
+def extract(
+    log: Path,
+    cfg: Config,
+    points_topic: str | None,
+    odom_topic: str | None,
+    odom_tum: Path | None,
+    imu_topic: str | None,
+    progress: bool,
+    keep_map: bool = False,
+    imu_samples: FloatArray | None = None,
+) -> tuple[_core.LogProcessor, SubmapLandmarks]:
+    processor = _core.LogProcessor(
+        str(log),
+        json.dumps(cfg.to_dict()),
+        points_topic=points_topic,
+        odom_topic=odom_topic,
+        odom_tum=None if odom_tum is None else str(odom_tum),
+        imu_topic=imu_topic,
+        map=keep_map,
+        imu_samples=imu_samples,
+    )
+    bar = Progress("extract", processor.total_scans_hint or None, enabled=progress)
+    out = SubmapLandmarks()
+    read = 0
+    while (batch := processor.step()) is not None:
+        for submap in batch:
+            out.anchor_stamps.append(submap.anchor_stamp)
+            out.anchor_poses.append(submap.world_from_anchor)
+            out.landmarks.extend(submap.result.landmarks)
+            for rejection in submap.result.rejections:
+                out.rejections[rejection.kind] = out.rejections.get(rejection.kind, 0) + 1
+                out.rejection_messages.append(str(rejection))
+        bar.advance(processor.scans_read - read)
+        read = processor.scans_read
+    bar.close()
+    return processor, out
+
+
+def scan_odometry(processor: _core.LogProcessor) -> tuple[FloatArray, FloatArray]:
+    """The stamps and odometry poses, (N,) and (N, 4, 4), of the scans ``processor`` read."""
+    return (
+        np.asarray(processor.scan_stamps(), dtype=np.float64),
+        np.asarray(processor.scan_poses(), dtype=np.float64),
+    )
+
+
+def extract_stage(
+    log: Path,
+    cfg: Config,
+    topics: Topics,
+    progress: bool,
+    keep_map: bool,
+    imu_samples: FloatArray | None,
+) -> tuple[Extracted, dict[str, Any]]:
+    """Stage 1 on a configured run: the log streamed into submaps and landmarks, the
+    stream's damage and gaps warned about once (the run goes on with what the log holds),
+    and ``report.json``'s ``ingest`` section; ``ValueError`` naming the log when no scan
+    pairs with odometry. ``keep_map``: keep the voxel map (2-12 % of the stream's time)."""
+    processor, ex = extract(log, cfg, *topics, progress, keep_map=keep_map, imu_samples=imu_samples)
+    scans = scan_odometry(processor)
+    health = StreamHealth.from_core(processor.health())
+    warn_once(log, health)
+    if scans[0].size == 0:
+        raise ValueError(f"{log}: no scan could be paired with odometry")
+    gap_periods = float(cfg.submap.odometry_gap_periods)
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    ingest, gap_factors = ingest_section(
+        health, processor.points_topic, scans, gap_periods, anchors
+    )
+    return Extracted(log, processor, ex, scans, gap_factors, topics[3]), ingest

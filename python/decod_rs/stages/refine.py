@@ -1,0 +1,74 @@
+"""Stages 1-4 again on submaps stitched by the first corrected trajectory, where it stitches
+them differently enough (:mod:`decod_rs.refinement` decides and judges the round)."""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs.config import Config
+from decod_rs.refinement import RebuildDecision, rebuild_decision
+from decod_rs.stages.extract import Extracted, SubmapLandmarks, extract
+from decod_rs.stages.match import Matched, match_and_select
+from decod_rs.stages.solve import Solved, solve
+from decod_rs.tum import interpolate_poses, write_tum
+
+FloatArray = NDArray[np.float64]
+
+
+def rebuild(
+    extraction: Extracted, cfg: Config, corrected: FloatArray, progress: bool
+) -> SubmapLandmarks:
+    """Stage 1 again, the submaps stitched by the corrected trajectory; the anchors placed
+    on the odometry like the first ones (:mod:`decod_rs.refinement`)."""
+    stamps, odometry = extraction.scans
+    with tempfile.TemporaryDirectory(prefix="decod-rebuild-") as tmp:
+        tum = Path(tmp) / "corrected.tum"
+        write_tum(tum, stamps, corrected)
+        points = extraction.processor.points_topic
+        # The IMU the first extraction read: with the odometry from the file above, the log is
+        # then read once, for its scans (not once more for the IMU).
+        imu = extraction.processor.imu_samples()
+        topic = extraction.imu_topic if imu is None else None
+        _, ex = extract(extraction.log, cfg, points, None, tum, topic, progress, imu_samples=imu)
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
+    return ex
+
+
+def rescaled_passes(solved: Solved) -> int:
+    """How many passes of a round had their scale measured and applied."""
+    return 0 if solved.scale is None else sum(bool(p["rescaled"]) for p in solved.scale.passes)
+
+
+def rebuilt(
+    extraction: Extracted,
+    ex: SubmapLandmarks,
+    matched: Matched,
+    solved: Solved,
+    cfg: Config,
+    mode: str,
+    progress: bool,
+) -> tuple[SubmapLandmarks, Matched, Solved, RebuildDecision]:
+    """Stages 1-4 again on submaps rebuilt on the corrected trajectory when it stitches
+    them differently enough; the rebuilt round replaces the first only if it closes more
+    loops (:mod:`decod_rs.refinement`)."""
+    scans = extraction.scans
+    decision = rebuild_decision(scans[1], solved.correction.poses, cfg)
+    if not decision.needed:
+        return ex, matched, solved, decision
+    ex2 = rebuild(extraction, cfg, solved.correction.poses, progress)
+    matched2 = match_and_select(ex2, cfg, mode, *scans, link_frame=solved.correction.poses)
+    matched2, solved2 = solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
+    decision = replace(
+        decision,
+        loops=(sum(matched.keep), sum(matched2.keep)),
+        rescaled=(rescaled_passes(solved), rescaled_passes(solved2)),
+    )
+    if decision.kept:
+        return ex2, matched2, solved2, decision
+    return ex, matched, solved, decision
