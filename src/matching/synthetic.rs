@@ -179,16 +179,37 @@ impl JointSurface {
     /// One observation of this joint as a landmark (see [`Observation`]).
     pub fn observe(&self, obs: &Observation, noise_seed: u64) -> Landmark {
         let g = self.grid;
-        let (rows, cols) = (g.rows, g.cols);
         let mut rng = Rng::new(noise_seed.wrapping_mul(0x3000_0005).wrapping_add(17));
+        let mut offsets = self.observed_offsets(obs, &mut rng);
+        let observed = observed_cells(g, obs, &mut rng);
+        for (v, &o) in offsets.iter_mut().zip(&observed) {
+            if !o {
+                *v = 0.0;
+            }
+        }
+        synthetic_landmark(
+            g,
+            obs.stamp,
+            obs.shift_z_m,
+            self.params.groove_depth_m,
+            offsets,
+            observed,
+        )
+    }
+
+    /// The descriptor's offsets as `obs` sees them: the surface averaged over 2 x 2 samples
+    /// per cell (a cell averages many points), the nuisance of the reference contour
+    /// (radius, ellipticity, centring, tilt) and the cell noise; reversed for the other
+    /// heading.
+    fn observed_offsets(&self, obs: &Observation, rng: &mut Rng) -> Vec<f64> {
+        let g = self.grid;
+        let (rows, cols) = (g.rows, g.cols);
         let mut offsets = vec![0.0; rows * cols];
-        let mut observed = vec![true; rows * cols];
         for r in 0..rows {
             let z_cells = r as f64 + 0.5 - rows as f64 / 2.0;
             let z_m = z_cells * g.cell_z_m;
             for c in 0..cols {
                 let p = (c as f64 + 0.5) / cols as f64;
-                // Mean over 2 x 2 samples in the cell (a cell averages many points).
                 let mut h = 0.0;
                 for (sz, sp) in [(-0.25, -0.25), (-0.25, 0.25), (0.25, -0.25), (0.25, 0.25)] {
                     h += 0.25
@@ -207,72 +228,88 @@ impl JointSurface {
         if obs.reversed {
             offsets.reverse();
         }
-        // Masks live in the observer's frame (after the heading).
-        let bottom = obs.bottom_mask_deg / 360.0;
-        for r in 0..rows {
-            for c in 0..cols {
-                let p = (c as f64 + 0.5) / cols as f64;
-                let from_bottom = p.min(1.0 - p);
-                let in_missing = obs
-                    .missing_arc
-                    .is_some_and(|(start, frac)| (p - start).rem_euclid(1.0) < frac);
-                if from_bottom < bottom || in_missing {
-                    observed[r * cols + c] = false;
-                }
+        offsets
+    }
+}
+
+/// Which cells `obs` observed, in the observer's frame (after the heading): not the masked
+/// bottom sector, not the missing arc, not the random holes (`rng` after the offsets' noise).
+fn observed_cells(g: Grid, obs: &Observation, rng: &mut Rng) -> Vec<bool> {
+    let (rows, cols) = (g.rows, g.cols);
+    let mut observed = vec![true; rows * cols];
+    let bottom = obs.bottom_mask_deg / 360.0;
+    for r in 0..rows {
+        for c in 0..cols {
+            let p = (c as f64 + 0.5) / cols as f64;
+            let from_bottom = p.min(1.0 - p);
+            let in_missing = obs
+                .missing_arc
+                .is_some_and(|(start, frac)| (p - start).rem_euclid(1.0) < frac);
+            if from_bottom < bottom || in_missing {
+                observed[r * cols + c] = false;
             }
         }
-        for _ in 0..obs.holes {
-            let (r0, c0) = (
-                (rng.uniform() * rows as f64) as usize,
-                (rng.uniform() * cols as f64) as usize,
-            );
-            let (hr, hc) = (
-                1 + (rng.uniform() * 3.0) as usize,
-                4 + (rng.uniform() * 20.0) as usize,
-            );
-            for r in r0..(r0 + hr).min(rows) {
-                for c in c0..c0 + hc {
-                    observed[r * cols + c % cols] = false;
-                }
+    }
+    for _ in 0..obs.holes {
+        let (r0, c0) = (
+            (rng.uniform() * rows as f64) as usize,
+            (rng.uniform() * cols as f64) as usize,
+        );
+        let (hr, hc) = (
+            1 + (rng.uniform() * 3.0) as usize,
+            4 + (rng.uniform() * 20.0) as usize,
+        );
+        for r in r0..(r0 + hr).min(rows) {
+            for c in c0..c0 + hc {
+                observed[r * cols + c % cols] = false;
             }
         }
-        for (v, &o) in offsets.iter_mut().zip(&observed) {
-            if !o {
-                *v = 0.0;
-            }
-        }
-        let normal_e1: Vec<f64> = (0..cols)
-            .map(|c| (TAU * (c as f64 + 0.5) / cols as f64).cos())
-            .collect();
-        let normal_e2: Vec<f64> = (0..cols)
-            .map(|c| (TAU * (c as f64 + 0.5) / cols as f64).sin())
-            .collect();
-        let contour = normal_e1
-            .iter()
-            .zip(&normal_e2)
-            .map(|(a, b)| [g.radius_m * a, g.radius_m * b])
-            .collect();
-        Landmark {
-            submap_stamp: obs.stamp,
-            scan_stamps: (0..20).map(|k| obs.stamp + 0.1 * k as f64).collect(),
-            origin_in_submap: [obs.shift_z_m, 0.0, 0.0],
-            axis_in_submap: [1.0, 0.0, 0.0],
-            e1_in_submap: [0.0, 0.0, -1.0],
-            e2_in_submap: [0.0, 1.0, 0.0],
-            contour_e1e2_m: contour,
-            radius_m: g.radius_m,
-            strength: self.params.groove_depth_m,
-            descriptor: Descriptor {
-                rows,
-                cols,
-                cell_z_m: g.cell_z_m,
-                perimeter_m: TAU * g.radius_m,
-                offsets_m: offsets,
-                observed,
-                normal_e1,
-                normal_e2,
-            },
-        }
+    }
+    observed
+}
+
+/// A landmark on a circular section of `g`'s radius, its boundary `shift_z_m` along the
+/// submap's x axis, with the descriptor `offsets` / `observed`.
+fn synthetic_landmark(
+    g: Grid,
+    stamp: f64,
+    shift_z_m: f64,
+    strength: f64,
+    offsets: Vec<f64>,
+    observed: Vec<bool>,
+) -> Landmark {
+    let cols = g.cols;
+    let normal_e1: Vec<f64> = (0..cols)
+        .map(|c| (TAU * (c as f64 + 0.5) / cols as f64).cos())
+        .collect();
+    let normal_e2: Vec<f64> = (0..cols)
+        .map(|c| (TAU * (c as f64 + 0.5) / cols as f64).sin())
+        .collect();
+    let contour = normal_e1
+        .iter()
+        .zip(&normal_e2)
+        .map(|(a, b)| [g.radius_m * a, g.radius_m * b])
+        .collect();
+    Landmark {
+        submap_stamp: stamp,
+        scan_stamps: (0..20).map(|k| stamp + 0.1 * k as f64).collect(),
+        origin_in_submap: [shift_z_m, 0.0, 0.0],
+        axis_in_submap: [1.0, 0.0, 0.0],
+        e1_in_submap: [0.0, 0.0, -1.0],
+        e2_in_submap: [0.0, 1.0, 0.0],
+        contour_e1e2_m: contour,
+        radius_m: g.radius_m,
+        strength,
+        descriptor: Descriptor {
+            rows: g.rows,
+            cols,
+            cell_z_m: g.cell_z_m,
+            perimeter_m: TAU * g.radius_m,
+            offsets_m: offsets,
+            observed,
+            normal_e1,
+            normal_e2,
+        },
     }
 }
 
