@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from decod_rs.bench.detection_bias import band_labels, format_section, view_bias
 from decod_rs.bench.matrix import (
     MAX_FULL_RING_M,
     QUICK,
@@ -270,3 +271,67 @@ def test_targets_name_the_failing_cells() -> None:
     assert t["aliased cell has no accepted loop"]["held_out"]["status"] == "n/a"
     md = format_markdown(rows, {})
     assert "- **every cell ran**: FAIL: boom/symmetric" in md
+
+
+def test_view_bias_measures_a_range_proportional_detection_error() -> None:
+    # Joints every 1.5 m; anchors every 0.25 m; each anchor sees the joints within 8 m, placed
+    # 0.4 % of the range farther from it than they are, plus 5 mm of noise, and one wall
+    # feature 0.5 m from a joint (beyond the tolerance: not a view of a joint).
+    rng = np.random.default_rng(3)
+    joints = np.arange(0.0, 40.0, 1.5)
+    anchors = np.arange(0.0, 40.0, 0.25)
+    view_x, anchor_x = [], []
+    for a in anchors:
+        for j in joints[np.abs(joints - a) <= 8.0]:
+            view_x.append(j + 0.004 * (j - a) + rng.normal(0.0, 0.005))
+            anchor_x.append(a)
+    # Other features within the tolerance, all 0.2 m ahead of a joint seen 1.2-2.4 m ahead (a
+    # wall feature, a twin band): a plain least-squares fit would give 0.50 %.
+    for j in joints[1:]:
+        for back in (1.2, 1.6, 2.0, 2.4):
+            view_x.append(j + 0.2)
+            anchor_x.append(j - back)
+    view_x.append(joints[3] + 0.5)
+    anchor_x.append(anchors[0])
+    got = view_bias(np.array(view_x), np.array(anchor_x), joints, 0.3)
+    assert got["view_bias_views"] == len(view_x) - 1
+    # Thousands of views: the slope within 0.05 points of the 0.4 % put in.
+    assert got["view_bias_slope_percent"] == pytest.approx(0.4, abs=0.05)
+    bands = got["view_bias_cm_by_range"]
+    assert len(bands) == len(band_labels()) == 7
+    # Behind the anchor (-8..-6 m) about -2.8 cm, ahead (6..8 m) about +2.8 cm, +-1 m about 0.
+    assert bands[0] == pytest.approx(-2.8, abs=0.3)
+    assert bands[-1] == pytest.approx(2.8, abs=0.3)
+    assert bands[3] == pytest.approx(0.0, abs=0.2)
+    # An unbiased detection has no slope; no view, no figure.
+    flat = view_bias(np.array(anchor_x[:-1]) * 0 + joints[0], np.array(anchor_x[:-1]), joints, 0.3)
+    assert flat["view_bias_slope_percent"] == pytest.approx(0.0, abs=1e-9)
+    assert view_bias(np.zeros(0), np.zeros(0), joints, 0.3)["view_bias_slope_percent"] is None
+    # Joints seen only from 0-1.5 m ahead (a forward sensor in a pipe): no slope; the bands stay.
+    ahead = np.array(view_x) - np.array(anchor_x)
+    near = (ahead >= 0.0) & (ahead <= 1.5)
+    short = view_bias(np.array(view_x)[near], np.array(anchor_x)[near], joints, 0.3)
+    assert short["view_bias_slope_percent"] is None
+    assert short["view_bias_cm_by_range"][3] == pytest.approx(0.2, abs=0.15)  # 0.4 % of 0-1 m
+    with pytest.raises(ValueError, match="differ in shape"):
+        view_bias(np.zeros(3), np.zeros(2), joints, 0.3)
+    section = format_section(
+        [
+            {
+                "scene": "horseshoe",
+                "sensor": "spin64",
+                "variant": "",
+                "turnaround_corr_percent": 0.3,
+                **got,
+            },
+            {
+                "scene": "hume",
+                "sensor": "avia",
+                "variant": "",
+                **view_bias(np.zeros(0), np.zeros(0), joints, 0.3),
+            },
+        ]
+    )
+    assert section[0] == "## Detection error against range"
+    assert any(line.startswith("| horseshoe, spin64 | 1 |") and "+0.30" in line for line in section)
+    assert not any("hume" in line for line in section)

@@ -47,8 +47,10 @@ coverage = of the joints seen on both passes (a landmark within 0.3 m of the joi
 outbound pass and on the return pass), the fraction with an accepted loop correct at 0.3 m
 whose query lies within 0.3 m of the joint; endpoint error and position RMSE of odometry and
 corrected trajectory; the axial error at the far end (the outbound scale error) in percent of
-the outbound distance, before and after; the realtime factor of ``run_log``; and when no loop
-was accepted, why (from ``report.json``).
+the outbound distance, before and after; the realtime factor of ``run_log``; when no loop
+was accepted, why (from ``report.json``); and the detection's own axial error against the
+range a boundary was seen from, whose slope stretches the corrected trajectory
+(:mod:`decod_rs.bench.detection_bias`, ``view_bias_*``).
 
 **Targets** (summary of ``matrix.md``, separately for tuned and held-out rows):
 precision@1 >= 98 % at 0.3 m; no accepted loop beyond the coarse tolerance; joint coverage
@@ -79,6 +81,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from decod_rs.bench.detection_bias import format_section as bias_section
+from decod_rs.bench.detection_bias import view_bias
 from decod_rs.sim.scenes import SCENES, defaults_for, scene_params
 from decod_rs.sim.sensors import SensorSpec, sensor_spec
 
@@ -470,7 +474,8 @@ def _target_line(t: dict[str, Any]) -> str:
 
 
 def format_markdown(rows: Sequence[dict[str, Any]], meta: dict[str, Any]) -> str:
-    """``matrix.md``: the tuned rows, the held-out rows, then one summary line per target."""
+    """``matrix.md``: the tuned rows, the held-out rows, the detection's error against range
+    (:mod:`decod_rs.bench.detection_bias`), then one summary line per target."""
     lines = [
         "# Generalisation matrix",
         "",
@@ -489,6 +494,8 @@ def format_markdown(rows: Sequence[dict[str, Any]], meta: dict[str, Any]) -> str
         "## Held-out cells (never used for tuning)",
         "",
         *_table(_rows_of(rows, True)),
+        "",
+        *bias_section(rows),
         "",
         "## Targets",
         "",
@@ -758,7 +765,14 @@ def pass_summary(run_dir: Path, sim_dir: Path, result: dict[str, Any]) -> dict[s
         np.asarray(meta["joints_x_m"], dtype=np.float64), out_x, ret_x, closed_x
     )
     chain, not_at_joint = registry_chainage_errors(run_dir, meta, gt, lms)
+    bias = view_bias(
+        _world_axial(meta, gt, lms.stamp, lms.origin),
+        _world_axial(meta, gt, lms.stamp, np.zeros_like(lms.origin)),
+        np.asarray(meta["joints_x_m"], dtype=np.float64),
+        FINE_TOLERANCE_M,
+    )
     return {
+        **bias,
         "chainage_error_median_percent": float(np.median(chain)) if chain else None,
         "chainage_error_max_percent": float(np.max(chain)) if chain else None,
         "chainage_joints": len(chain),
