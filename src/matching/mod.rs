@@ -34,6 +34,7 @@ use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
 
 pub use database::{LandmarkDatabase, QueryResult};
+use faer::Mat;
 pub use heading::Heading;
 use keypoints::Keypoint;
 use normalise::Normalisation;
@@ -565,22 +566,7 @@ fn compare_heading(
     }
     let qp = side.patches(q, shape, heading);
     let dist = patches::distances(shape, qp, &c.patches, cfg.min_patch_overlap_fraction);
-    let pairs = correspondences::mutual_nearest(&dist);
-    let matches: Vec<Correspondence> = pairs
-        .iter()
-        .map(|&(i, j)| {
-            let kq = &q.keypoints[i];
-            let query = match heading {
-                Heading::Forward => (kq.row, kq.col),
-                Heading::Reversed => heading::flip_cell(kq.row, kq.col, rows, cols),
-            };
-            let kc = &c.keypoints[j];
-            Correspondence {
-                query,
-                candidate: (kc.row, kc.col),
-            }
-        })
-        .collect();
+    let matches = keypoint_correspondences(q, c, &dist, heading);
     let consensus = if cfg.verification {
         verify::consensus(&matches, cols, cfg)
     } else {
@@ -606,6 +592,32 @@ fn compare_heading(
         result.rejection = Some(Rejection::TooFewInliers);
     }
     result
+}
+
+/// The mutual nearest keypoint pairs of the patch distances `dist` (query x candidate), the
+/// query's cells in the candidate's heading (flipped for [`Heading::Reversed`]).
+fn keypoint_correspondences(
+    q: &PreparedLandmark,
+    c: &PreparedLandmark,
+    dist: &Mat<f32>,
+    heading: Heading,
+) -> Vec<Correspondence> {
+    let (rows, cols) = q.grid();
+    correspondences::mutual_nearest(dist)
+        .iter()
+        .map(|&(i, j)| {
+            let kq = &q.keypoints[i];
+            let query = match heading {
+                Heading::Forward => (kq.row, kq.col),
+                Heading::Reversed => heading::flip_cell(kq.row, kq.col, rows, cols),
+            };
+            let kc = &c.keypoints[j];
+            Correspondence {
+                query,
+                candidate: (kc.row, kc.col),
+            }
+        })
+        .collect()
 }
 
 /// The inlier count below which a pair is rejected on its own: `min_inliers` under the
