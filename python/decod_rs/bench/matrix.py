@@ -614,14 +614,27 @@ def _world_axial(
 ) -> FloatArray:
     """Axial positions (m along the corridor axis) of body-frame ``origins`` at ``stamps``,
     placed with the ground-truth poses; stamps outside the ground truth are dropped."""
+
+    return _axial_with_anchors(meta, gt, stamps, origins)[0]
+
+
+def _axial_with_anchors(
+    meta: dict[str, Any], gt: tuple[FloatArray, FloatArray], stamps: FloatArray, origins: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`_world_axial` of ``origins`` and of their anchors (the body frames' origins),
+    from one interpolation of the ground truth."""
     from decod_rs.tum import interpolate_poses
 
     inside = (stamps >= gt[0][0]) & (stamps <= gt[0][-1])
     if not np.any(inside):
-        return np.zeros(0)
+        return np.zeros(0), np.zeros(0)
     t = interpolate_poses(gt[0], gt[1], stamps[inside])
     world = np.einsum("nij,nj->ni", t[:, :3, :3], origins[inside]) + t[:, :3, 3]
-    return np.asarray((world - np.asarray(meta["axis"]["origin_m"])) @ _direction(meta))
+    start, direction = np.asarray(meta["axis"]["origin_m"]), _direction(meta)
+    return (
+        np.asarray((world - start) @ direction),
+        np.asarray((t[:, :3, 3] - start) @ direction),
+    )
 
 
 def _far_end_percent(
@@ -765,11 +778,9 @@ def pass_summary(run_dir: Path, sim_dir: Path, result: dict[str, Any]) -> dict[s
         np.asarray(meta["joints_x_m"], dtype=np.float64), out_x, ret_x, closed_x
     )
     chain, not_at_joint = registry_chainage_errors(run_dir, meta, gt, lms)
+    view_x, anchor_x = _axial_with_anchors(meta, gt, lms.stamp, lms.origin)
     bias = view_bias(
-        _world_axial(meta, gt, lms.stamp, lms.origin),
-        _world_axial(meta, gt, lms.stamp, np.zeros_like(lms.origin)),
-        np.asarray(meta["joints_x_m"], dtype=np.float64),
-        FINE_TOLERANCE_M,
+        view_x, anchor_x, np.asarray(meta["joints_x_m"], dtype=np.float64), FINE_TOLERANCE_M
     )
     return {
         **bias,

@@ -8,7 +8,7 @@ batch of rays, whatever the detail in the table.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +32,11 @@ class Grid2D:
     values: NDArray[np.float32]
     wrap_v: bool = True
     wrap_u: bool = False
+
+    def repeating_from(self, u0: float) -> Grid2D:
+        """The same samples, periodic along both axes, ``u`` from ``u0``: the texture of an
+        aliased corridor, the same in every segment from the first joint."""
+        return replace(self, u0=u0, wrap_v=True, wrap_u=True)
 
     def __call__(self, u: F64, v: F64) -> F64:
         nu, nv = self.values.shape

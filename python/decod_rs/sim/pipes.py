@@ -325,7 +325,7 @@ def build_hume(
     )
     if identical:
         # Roughness repeats every segment in phase with the joints.
-        rough = Grid2D(joints[0], rough.du, rough.v0, rough.dv, rough.values, True, True)
+        rough = rough.repeating_from(joints[0])
 
     # Lateral connections: a round opening (a stub pipe) mid-segment on the upper half.
     conn_x: list[float] = []
@@ -410,7 +410,7 @@ def build_pe(
         seg if identical else None,
     )
     if identical:
-        rough = Grid2D(joints[0], rough.du, rough.v0, rough.dv, rough.values, True, True)
+        rough = rough.repeating_from(joints[0])
     p["identical_joints"] = identical
     couplers, lips = apply_changes(p, couplers, lips, th)
     return Scene(

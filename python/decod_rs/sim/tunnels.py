@@ -280,7 +280,7 @@ def build_shield(
         ring if identical else None,
     )
     if identical:
-        rough = Grid2D(joints[0], rough.du, rough.v0, rough.dv, rough.values, True, True)
+        rough = rough.repeating_from(joints[0])
     floor = _floor_texture(
         rng,
         x_min,
@@ -403,30 +403,19 @@ def _rock_roughness(
     """The rock's overbreak (coarse, 0.1 m cells) and fine roughness (0.025 m), periodic with
     the arch spacing from the first joint when ``identical``."""
     period = p["arch_spacing_m"] if identical else None
-    radius = p["radius_m"]
-    coarse = _roughness(
-        rng,
-        x_min,
-        x_max,
-        0.1,
-        256,
-        p["rock_overbreak_corr_m"],
-        radius,
-        p["rock_overbreak_m"],
-        period,
-    )
-    fine = _roughness(
-        rng,
-        x_min,
-        x_max,
-        0.025,
-        640,
-        p["rock_roughness_corr_m"],
-        radius,
-        p["rock_roughness_m"],
-        period,
-    )
-    if identical:
-        coarse = Grid2D(joints[0], coarse.du, coarse.v0, coarse.dv, coarse.values, True, True)
-        fine = Grid2D(joints[0], fine.du, fine.v0, fine.dv, fine.values, True, True)
+    grids = []
+    for cell_m, cells, name in ((0.1, 256, "overbreak"), (0.025, 640, "roughness")):
+        grid = _roughness(
+            rng,
+            x_min,
+            x_max,
+            cell_m,
+            cells,
+            p[f"rock_{name}_corr_m"],
+            p["radius_m"],
+            p[f"rock_{name}_m"],
+            period,
+        )
+        grids.append(grid.repeating_from(joints[0]) if identical else grid)
+    coarse, fine = grids
     return coarse, fine
