@@ -29,6 +29,7 @@ import numpy as np
 
 from decod_rs.config import MODES, Config
 from decod_rs.io import find_imu_topic
+from decod_rs.refinement import rebuild_report
 from decod_rs.run_files import check_run_dir, staged_run_dir
 from decod_rs.stages.extract import Extracted, configure, extract_stage
 from decod_rs.stages.match import match_and_select
@@ -198,7 +199,7 @@ def finish_run(
     report = run_report(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
-    report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild.report())
+    report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild_report(rebuild))
     report["unmeasured"] = unmeasured_report(*odometry_only)
     report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
     if scale is not None and report["sequential"] is not None:

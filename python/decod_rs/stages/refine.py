@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.config import Config
-from decod_rs.refinement import RebuildDecision, rebuild_decision
+from decod_rs.refinement import MAX_ROUNDS, RebuildDecision, rebuild_decision
 from decod_rs.stages.extract import Extracted, SubmapLandmarks, extract
 from decod_rs.stages.match import Matched, match_and_select
 from decod_rs.stages.solve import Solved, solve
@@ -53,22 +53,30 @@ def rebuilt(
     cfg: Config,
     mode: str,
     progress: bool,
-) -> tuple[SubmapLandmarks, Matched, Solved, RebuildDecision]:
-    """Stages 1-4 again on submaps rebuilt on the corrected trajectory when it stitches
-    them differently enough; the rebuilt round replaces the first only if it closes more
-    loops (:mod:`decod_rs.refinement`)."""
+) -> tuple[SubmapLandmarks, Matched, Solved, list[RebuildDecision]]:
+    """Stages 1-4 again on submaps rebuilt on the corrected trajectory, for as long as the
+    newest correction stitches them differently enough from the trajectory they were
+    stitched on and the rebuilt round stands (:mod:`decod_rs.refinement`: at most
+    ``MAX_ROUNDS`` rebuilds). The decisions of the rounds, first to last."""
     scans = extraction.scans
-    decision = rebuild_decision(scans[1], solved.correction.poses, cfg)
-    if not decision.needed:
-        return ex, matched, solved, decision
-    ex2 = rebuild(extraction, cfg, solved.correction.poses, progress)
-    matched2 = match_and_select(ex2, cfg, mode, *scans, link_frame=solved.correction.poses)
-    matched2, solved2 = solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
-    decision = replace(
-        decision,
-        loops=(sum(matched.keep), sum(matched2.keep)),
-        rescaled=(rescaled_passes(solved), rescaled_passes(solved2)),
-    )
-    if decision.kept:
-        return ex2, matched2, solved2, decision
-    return ex, matched, solved, decision
+    stitched_on = scans[1]  # the first submaps were stitched on the odometry
+    decisions: list[RebuildDecision] = []
+    while len(decisions) < MAX_ROUNDS:
+        decision = rebuild_decision(stitched_on, solved.correction.poses, cfg)
+        if not decision.needed:
+            decisions.append(decision)
+            break
+        ex2 = rebuild(extraction, cfg, solved.correction.poses, progress)
+        matched2 = match_and_select(ex2, cfg, mode, *scans, link_frame=solved.correction.poses)
+        matched2, solved2 = solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
+        decision = replace(
+            decision,
+            loops=(sum(matched.keep), sum(matched2.keep)),
+            rescaled=(rescaled_passes(solved), rescaled_passes(solved2)),
+        )
+        decisions.append(decision)
+        if not decision.kept:
+            break
+        stitched_on = solved.correction.poses
+        ex, matched, solved = ex2, matched2, solved2
+    return ex, matched, solved, decisions
