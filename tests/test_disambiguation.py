@@ -43,12 +43,16 @@ def _result(query: tuple[float, float], top: tuple[float, float], runner: int | 
 
 
 # Database: index 0 the Top-1's view of the boundary at x = 10; 1 the next ring (x = 11.5);
-# 2 a second view of a boundary only 0.4 m from x = 10.
-DB = [_landmark(8.0, 2.0), _landmark(9.0, 2.5), _landmark(9.0, 1.4)]
+# 2 a second view of a boundary only 0.4 m from x = 10; 3 another view of the Top-1's own
+# boundary, from the anchor a second earlier (x = 10.05: the detection's spread).
+DB = [_landmark(8.0, 2.0), _landmark(9.0, 2.5), _landmark(9.0, 1.4), _landmark(7.0, 3.05)]
+SAME = 0.1  # the pipes' same-boundary radius (matching.duplicate_radius_m)
 
 
 def _resolve(results: list[Any], reasons: list[str], anchored: bool = True) -> list[int]:
-    return resolve_with_prior(results, reasons, DB, _frame(), TOL, lambda _stamp: anchored)
+    return resolve_with_prior(
+        results, reasons, DB, _frame(), TOL, lambda _stamp: anchored, same_radius_m=SAME
+    )
 
 
 def test_the_prior_keeps_a_top1_it_separates_from_the_runner_up() -> None:
@@ -85,3 +89,21 @@ def test_near_loops_measures_path_not_time() -> None:
 def test_a_non_positive_tolerance_is_refused() -> None:
     with pytest.raises(ValueError, match="consistency_tolerance_m"):
         resolve_with_prior([], [], DB, _frame(), 0.0, lambda _s: True)
+
+
+def test_a_runner_up_at_the_top1s_own_boundary_does_not_make_it_ambiguous() -> None:
+    # pe pipe, 16 beams, uneven drift (matrix pe-spin16-turn-s1): every Top-1 was the right
+    # coupler, but its views had not been linked into one track, so the runner-up was the
+    # same coupler seen from the next anchor, 1-2 cm away on the corrected trajectory, and
+    # 10 right queries stayed `not_unique` (2 of 5 couplers closed; 5 of 5 with this rule).
+    r = _result((90.0, -79.9), (8.0, 2.0), runner=3)
+    assert _resolve([r], ["not_unique"]) == [0]
+    # Without a same-boundary radius the rule is the old one: too close to tell apart.
+    assert resolve_with_prior([r], ["not_unique"], DB, _frame(), TOL, lambda _s: True) == []
+    # A boundary 0.4 m away is another boundary, and still too close to the query to choose.
+    assert _resolve([_result((90.0, -79.9), (8.0, 2.0), runner=2)], ["not_unique"]) == []
+
+
+def test_a_negative_same_boundary_radius_is_refused() -> None:
+    with pytest.raises(ValueError, match="duplicate_radius_m"):
+        resolve_with_prior([], [], DB, _frame(), TOL, lambda _s: True, same_radius_m=-0.1)

@@ -20,7 +20,16 @@ trajectory,
 - a loop accepted on its descriptor alone lies within ``consistency_window_m`` of path of
   the query: the corrected trajectory is trusted only where a unique loop anchored it,
 
-so the prior separates the two hypotheses the descriptor could not. The Top-1 has already
+so the prior separates the two hypotheses the descriptor could not. A runner-up whose view
+lies within the same-boundary radius (``matching.duplicate_radius_m``) of the Top-1's view
+on the corrected trajectory is not a second hypothesis but the Top-1's own boundary seen
+from another anchor: the matcher keeps a boundary's views from being each other's runner-up
+by their track ids, and views the descriptor could not link into one track (pe pipe, 16
+beams) are not covered by that. In the matrix's pe-spin16-turn-s1 run under uneven drift
+every Top-1 was the right coupler, yet 10 queries stayed ``not_unique`` with the same
+coupler 1-2 cm away as runner-up; with the rule 13 loops instead of 6 and 5 of 5 couplers
+closed instead of 2. Whole matrix (m94 against m92, same logs): 9,780 -> 11,342 loops, none
+wrong, joint coverage below 50 % in 3 rows instead of 5. The Top-1 has already
 passed the null model's family-wise chance test; only the choice between beyond-chance
 candidates is made by position. ``consistency_tolerance_m`` stays below half the boundary
 spacing (its config doc), so a neighbouring boundary never falls within it unless the
@@ -79,6 +88,7 @@ def _resolvable(
     db_landmarks: Sequence[Landmark],
     frame: CorrectedFrame,
     tolerance_m: float,
+    same_radius_m: float,
 ) -> bool:
     query, top = frame.loop_ends(r)
     if float(np.linalg.norm(query - top)) > tolerance_m:
@@ -87,6 +97,11 @@ def _resolvable(
         return True
     runner = db_landmarks[r.runner_up_index]
     other = frame.world(runner.submap_stamp, np.asarray(runner.origin, dtype=np.float64))
+    top_view = db_landmarks[r.candidate_index] if r.candidate_index is not None else None
+    if top_view is not None:
+        seen_at = frame.world(top_view.submap_stamp, np.asarray(top_view.origin, dtype=np.float64))
+        if float(np.linalg.norm(seen_at - other)) <= same_radius_m:
+            return True  # the runner-up is another view of the Top-1's boundary (module docs)
     return float(np.linalg.norm(query - other)) > 2.0 * tolerance_m
 
 
@@ -97,20 +112,25 @@ def resolve_with_prior(
     frame: CorrectedFrame,
     tolerance_m: float,
     anchored: Callable[[float], bool],
+    same_radius_m: float = 0.0,
 ) -> list[int]:
     """Indices of the ``not_unique`` results the corrected trajectory resolves (module
     docs). ``db_landmarks[i]`` is the landmark behind database index ``i`` (the indices
     ``QueryResult.candidate_index`` and ``runner_up_index`` refer to); ``anchored(stamp)``:
-    whether a loop accepted on its descriptor lies near the query submap at ``stamp``."""
+    whether a loop accepted on its descriptor lies near the query submap at ``stamp``;
+    ``same_radius_m``: a runner-up whose view lies this close to the Top-1's view (the
+    same-boundary radius, ``matching.duplicate_radius_m``) is the Top-1's own boundary."""
     if not tolerance_m > 0.0:
         raise ValueError(f"consistency_tolerance_m: {tolerance_m} must be > 0")
+    if not same_radius_m >= 0.0:
+        raise ValueError(f"duplicate_radius_m: {same_radius_m} must be >= 0")
     return [
         k
         for k, (r, why) in enumerate(zip(results, reasons, strict=True))
         if why == AMBIGUOUS
         and r.candidate_index is not None
         and anchored(r.query_stamp)
-        and _resolvable(r, db_landmarks, frame, tolerance_m)
+        and _resolvable(r, db_landmarks, frame, tolerance_m, same_radius_m)
     ]
 
 

@@ -171,6 +171,7 @@ def resolve(
         CorrectedFrame(scans[0], corrected),
         float(m.consistency_tolerance_m),
         near_loops(loops, path_along(*scans), float(m.consistency_window_m)),
+        float(m.duplicate_radius_m),
     )
     if not promoted:
         return matched
