@@ -23,6 +23,7 @@ from decod_rs.bench.matrix import (
     loop_summary,
     registry_chainage_errors,
     ring_distance_for,
+    sees_walls,
     tier_cells,
     zero_loop_reason,
 )
@@ -94,6 +95,23 @@ def test_quick_tier_and_filter() -> None:
     assert [c.name for c in tier_cells("full", "w9")] == ["shield-avia-turn-s0-w9"]
     with pytest.raises(ValueError, match="tier"):
         tier_cells("huge")
+
+
+def test_the_fresh_tier_is_held_out_and_outside_the_full_tier() -> None:
+    fresh = tier_cells("fresh")
+    full = tier_cells("full")
+    assert len(fresh) == 6 and all(c.held_out for c in fresh)
+    assert not {c.name for c in fresh} & {c.name for c in full}
+    # Each cell a size, spacing or speed its scene does not have in the full tier.
+    full_keys = {
+        (c.scene, key, value) for c in full for key, value in c.scene_overrides.items()
+    } | {(c.scene, "speed", c.speed_mps) for c in full}
+    for c in fresh:
+        assert sees_walls(c.scene, c.sensor, c.scene_overrides), c.name
+        keys = {(c.scene, key, value) for key, value in c.scene_overrides.items()}
+        keys |= {(c.scene, "speed", c.speed_mps)} if c.speed_mps is not None else set()
+        assert keys and not keys & full_keys, c.name
+    assert [c.name for c in tier_cells("fresh", "d0.8")] == ["pe-spin16-reverse-s7-d0.8"]
 
 
 def test_full_ring_distance_follows_the_field_of_view() -> None:
