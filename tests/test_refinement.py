@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -88,6 +89,33 @@ def test_the_rebuilt_submaps_stand_unless_they_measure_fewer_passes_or_clearly_f
     assert measured["kept"] is True and measured["rescaled_passes_first_and_rebuilt"] == [1, 2]
 
 
+def _uneven_run(
+    tmp_path: Path, scene: str, seed: int, sensor: str, return_mode: str, speed_mps: float
+) -> tuple[Path, Path, dict[str, Any]]:
+    """A 30 m out-and-back log whose odometry reports 95 % of the outbound and 85 % of the
+    return, run end to end with the defaults: the simulation, run directory and report."""
+    import json
+
+    from decod_rs.pipeline import run_log
+    from decod_rs.sim import simulate
+
+    sim = tmp_path / "sim"
+    simulate(
+        scene,
+        sim,
+        seed=seed,
+        sensor=sensor,
+        return_mode=return_mode,
+        speed_mps=speed_mps,
+        length_m=30.0,
+        drift="legs:-0.05,-0.15",
+        progress=False,
+    )
+    out = tmp_path / "run"
+    run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False)
+    return sim, out, json.loads((out / "report.json").read_text())
+
+
 def test_a_rebuilt_round_tracks_boundaries_in_the_corrected_frame(tmp_path: Path) -> None:
     # The return pass's odometry is 15 % short: consecutive anchors 2.4 m apart disagree by
     # 0.36 m about a boundary's position, beyond the track radius, so in the odometry frame
@@ -95,26 +123,9 @@ def test_a_rebuilt_round_tracks_boundaries_in_the_corrected_frame(tmp_path: Path
     # horseshoe-avia-turn-s0: endpoint 4.34 -> 1.75 m). Linked in the first round's corrected
     # trajectory, its tracks measure the scale, and the last metres (no loop: the sensor looks
     # out of the portal) get it too. Seed 22 is new to this rule.
-    import json
-
     from decod_rs.evaluate import evaluate_run
-    from decod_rs.pipeline import run_log
-    from decod_rs.sim import simulate
 
-    sim = tmp_path / "sim"
-    simulate(
-        "horseshoe",
-        sim,
-        seed=22,
-        sensor="avia",
-        speed_mps=1.0,
-        length_m=30.0,
-        drift="legs:-0.05,-0.15",
-        progress=False,
-    )
-    out = tmp_path / "run"
-    run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False)
-    report = json.loads((out / "report.json").read_text())
+    sim, out, report = _uneven_run(tmp_path, "horseshoe", 22, "avia", "turn", 1.0)
     assert report["rebuild"]["kept"], report["rebuild"]
     passes = report["sequential"]["odometry_scale"]
     assert [p["rescaled"] for p in passes] == [True, True], passes
@@ -140,24 +151,8 @@ def test_a_second_rebuild_takes_the_rib_pattern_out_of_the_joint_registry(tmp_pa
     import json
 
     from decod_rs.evaluate import evaluate_run
-    from decod_rs.pipeline import run_log
-    from decod_rs.sim import simulate
 
-    sim = tmp_path / "sim"
-    simulate(
-        "pe",
-        sim,
-        seed=25,
-        sensor="spin16",
-        return_mode="turn",
-        speed_mps=0.3,
-        length_m=30.0,
-        drift="legs:-0.05,-0.15",
-        progress=False,
-    )
-    out = tmp_path / "run"
-    run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False)
-    report = json.loads((out / "report.json").read_text())
+    sim, out, report = _uneven_run(tmp_path, "pe", 25, "spin16", "turn", 0.3)
     rounds = report["rebuild"]["rounds"]
     assert report["rebuild"]["rebuilds"] == 2 and all(r["kept"] for r in rounds), rounds
     result, _ = evaluate_run(out, sim / "gt.tum", sim / "joints.json")
