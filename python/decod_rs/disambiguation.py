@@ -97,11 +97,9 @@ def _resolvable(
         return True
     runner = db_landmarks[r.runner_up_index]
     other = frame.world(runner.submap_stamp, np.asarray(runner.origin, dtype=np.float64))
-    top_view = db_landmarks[r.candidate_index] if r.candidate_index is not None else None
-    if top_view is not None:
-        seen_at = frame.world(top_view.submap_stamp, np.asarray(top_view.origin, dtype=np.float64))
-        if float(np.linalg.norm(seen_at - other)) <= same_radius_m:
-            return True  # the runner-up is another view of the Top-1's boundary (module docs)
+    seen_at = frame.world(r.candidate_stamp, np.asarray(r.candidate_origin, dtype=np.float64))
+    if float(np.linalg.norm(seen_at - other)) <= same_radius_m:
+        return True  # the runner-up is another view of the Top-1's boundary (module docs)
     return float(np.linalg.norm(query - other)) > 2.0 * tolerance_m
 
 
