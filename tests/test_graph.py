@@ -254,6 +254,43 @@ def test_propagation_keeps_nodes_and_is_continuous():
     assert steps.max() <= 0.1 + 0.025 + 0.01 + 1e-9
 
 
+def _straight(x: np.ndarray) -> np.ndarray:
+    poses = np.stack([np.eye(4)] * x.size)
+    poses[:, 0, 3] = x
+    return poses
+
+
+def test_propagation_leaves_a_robot_at_rest_where_it_stood():
+    # 2 s at rest, then 1 m/s; the odometry 5 % short, the nodes (at rest, 1 m and 2 m)
+    # corrected to the true positions. Blended by stamp, the correction between the node at
+    # rest and the first moving one would creep into the rest.
+    stamps = np.arange(0.0, 4.01, 0.1)
+    truth = np.clip(stamps - 2.0, 0.0, None)
+    odom = _straight(0.95 * truth)
+    nodes = np.array([10, 30, 40])
+    out = propagate_to_scans(stamps, odom, stamps[nodes], odom[nodes], _straight(truth[nodes]))
+    np.testing.assert_allclose(out[:21, 0, 3], 0.0, atol=1e-12)
+    # Between the moving nodes the odometry's travel and the stamps agree: the true positions.
+    np.testing.assert_allclose(out[20:, 0, 3], truth[20:], atol=1e-9)
+
+
+def test_propagation_follows_the_stamps_where_the_odometry_stalled():
+    # The odometry saw 2 % of a 2 m advance between two nodes, all of it in the first scan:
+    # its travel says nothing of where the robot moved, so the stamps decide.
+    stamps = np.arange(0.0, 2.01, 0.1)
+    odom_x = np.full(stamps.size, 0.04)
+    odom_x[0] = 0.0
+    nodes = np.array([0, 20])
+    corrected = _straight(np.array([0.0, 2.0]))
+    out = propagate_to_scans(
+        stamps, _straight(odom_x), stamps[nodes], _straight(odom_x[nodes]), corrected
+    )
+    # Each scan keeps its odometry relative to the nodes' corrections, blended by stamp.
+    expected = (1.0 - stamps / 2.0) * odom_x + stamps / 2.0 * (odom_x + 2.0 - 0.04)
+    np.testing.assert_allclose(out[:, 0, 3], expected, atol=1e-9)
+    assert out[10, 0, 3] == pytest.approx(1.02)  # halfway in time, not at the stall's end
+
+
 def test_correct_trajectory_at_both_granularities():
     gt, odom, node_loops = corridor()
     stamps = np.arange(odom.shape[0]) * 0.5
