@@ -535,10 +535,13 @@ def blend_fractions(
     the distance driven, not with time: blended by stamp, the correction between an anchor at
     rest and the next one leaked into the rest, and a robot standing still at the start of the
     simulated horseshoe crept 1.3 cm forward in its corrected trajectory (m95,
-    horseshoe-spin64-reverse-s0 under uneven drift), a centimetre of every joint's chainage.
-    Where the odometry saw less than half the corrected motion between the two nodes (a
-    frontend stalling along the axis), its travel says nothing of where the motion happened
-    and the stamp fraction is used."""
+    horseshoe-spin64-reverse-s0 under uneven drift), and the corrected path 6 m in was up to
+    2.1 cm longer than its straight extent (median 0.1 cm over the matrix's 100 runs; now at
+    most 0.17 cm), which the joint registry's chainage counts. Matrix m99 against m95 (the
+    same logs): corrected RMSE geometric mean x0.971, far end within 1 % in 97 of 98 rows
+    instead of 96, loops unchanged (11,337, none wrong). Where the odometry saw less than half
+    the corrected motion between the two nodes (a frontend stalling along the axis), its
+    travel says nothing of where the motion happened and the stamp fraction is used."""
     positions = scan_odom[:, :3, 3]
     travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
     node_travel = np.interp(node_stamps, scan_stamps, travel)
