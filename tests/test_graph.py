@@ -274,6 +274,18 @@ def test_propagation_leaves_a_robot_at_rest_where_it_stood():
     np.testing.assert_allclose(out[20:, 0, 3], truth[20:], atol=1e-9)
 
 
+def test_propagation_does_not_depend_on_the_order_the_scans_come_in():
+    stamps = np.arange(0.0, 4.01, 0.1)
+    truth = np.clip(stamps - 2.0, 0.0, None)
+    odom = _straight(0.95 * truth)
+    nodes = np.array([10, 30, 40])
+    corrected = _straight(truth[nodes])
+    ordered = propagate_to_scans(stamps, odom, stamps[nodes], odom[nodes], corrected)
+    perm = np.random.default_rng(3).permutation(stamps.size)
+    shuffled = propagate_to_scans(stamps[perm], odom[perm], stamps[nodes], odom[nodes], corrected)
+    np.testing.assert_allclose(shuffled, ordered[perm], atol=1e-12)
+
+
 def test_propagation_follows_the_stamps_where_the_odometry_stalled():
     # The odometry saw 2 % of a 2 m advance between two nodes, all of it in the first scan:
     # its travel says nothing of where the robot moved, so the stamps decide.

@@ -542,9 +542,13 @@ def blend_fractions(
     instead of 96, loops unchanged (11,337, none wrong). Where the odometry saw less than half
     the corrected motion between the two nodes (a frontend stalling along the axis), its
     travel says nothing of where the motion happened and the stamp fraction is used."""
-    positions = scan_odom[:, :3, 3]
-    travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
-    node_travel = np.interp(node_stamps, scan_stamps, travel)
+    # The odometry's path length in time order (the scans need not be given sorted).
+    order = np.argsort(scan_stamps, kind="stable")
+    steps = np.linalg.norm(np.diff(scan_odom[order, :3, 3], axis=0), axis=1)
+    travel_sorted = np.concatenate([[0.0], np.cumsum(steps)])
+    travel = np.empty_like(travel_sorted)
+    travel[order] = travel_sorted
+    node_travel = np.interp(node_stamps, scan_stamps[order], travel_sorted)
     odom_span = node_travel[k1] - node_travel[k]
     corrected_span = np.linalg.norm(node_optimised[k1, :3, 3] - node_optimised[k, :3, 3], axis=1)
     by_time = _fraction(scan_stamps, node_stamps[k], node_stamps[k1])
