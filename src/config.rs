@@ -493,125 +493,16 @@ impl DecodConfig {
     pub fn tunnel() -> Self {
         Self {
             preset: Preset::Tunnel,
-            // Schedule and range measured on the simulated shield tunnel (6 m bore, 1.5 m
-            // rings, bolt pockets 0.2 m off each seam; Ouster-like 64-beam sensor, 45 deg
-            // vertical field of view, 1.5 m/s, 60 m out and back): a spinning sensor sees the
-            // crown only beyond r / tan(VFoV / 2) ~ 7 m, and two views of one ring agree only
-            // when both were taken 4-8 m from it (median K 15 against 0-6 for every other
-            // distance pair, and 0 beyond 12 m). The paper's 8 s / 30 m gave 1 loop (endpoint
-            // 1.43 m of 1.70 m); 2 s (one submap per 3 m, every ring seen from 4-8 m in both
-            // traversals) with 12 m (the best-observed view the database keeps is then a near
-            // one) gave 10 true loops, 0 false, endpoint 0.25 m. 11 m: 8, 14 m: 5 loops; below
-            // 10 m most submaps fail the elongation test. Windows of 20 scans (3 m of travel)
-            // beat 10, 15, 25 and 30 at this range.
-            submap: SubmapConfig {
-                scans_per_submap: 20,
-                interval_s: 2.0,
-                voxel_m: 0.055,
-                min_range_m: 0.5,
-                max_range_m: 12.0,
-                min_points: 500,
-                rebuild_on_correction: true,
-                odometry_gap_periods: 5.0,
-            },
+            submap: tunnel_submap(),
             axis: AxisConfig {
                 min_elongation: 2.0,
                 refine_iterations: 2,
             },
-            contour: ContourConfig {
-                model: "auto".into(),
-                inlier_distance_m: 0.18,
-                min_inlier_fraction: 0.9,
-                max_fit_points: 5_000,
-                polar_bins: 180,
-                polar_smoothing_bins: 1.5,
-                auto_polar_ratio: 0.5,
-            },
-            boundary: BoundaryConfig {
-                profile_bin_m: 0.01,
-                dog_sigma_small_m: 0.025,
-                dog_sigma_large_m: 0.10,
-                nms_radius_m: 0.8,
-                min_strength_m: 0.002,
-                profile_sectors: 32,
-                min_snr: 3.0,
-            },
-            descriptor: DescriptorConfig {
-                rows: 16,
-                cols: 256,
-                half_length_m: 2.4,
-                bottom_mask_deg: 30.0,
-                min_points_per_cell: 1,
-                axial_interpolation: false,
-            },
-            matching: MatchingConfig {
-                patch_rows: 9,
-                patch_cols: 33,
-                sigma_z_cells: 3.0,
-                sigma_p_cells: 11.0,
-                min_overlap_fraction: 0.25,
-                // Above the paper's 9 (its 15 "for high precision", plus one): on the simulated
-                // shield tunnel, whose segment layout repeats every two rings (3 m), wrong-ring
-                // candidates reached K = 13-17 and two passed the uniqueness test (K 13 and 15
-                // against runner-ups of 3 and 4, 9 m off); true accepted loops had K 13-27
-                // (one of ten below 16).
-                min_inliers: 16,
-                uniqueness_ratio: 2.0,
-                min_time_separation_s: 30.0,
-                normalisation: "five_variable".into(),
-                sign_only: false,
-                verification: true,
-                // Suppression 1 x 1 cell (was 1 x 4): tunnel texture (seams, pocket edges) is
-                // narrow along p, so wider suppression left ~25 keypoints per descriptor and
-                // true pairs too few inliers to clear the uniqueness margin. On the simulated
-                // shield tunnel (2 s / 12 m schedule): 1 x 4: 5 loops, 1 x 2: 6-8, 1 x 1: 10,
-                // all true; 2 x 1: 8; 0 x 1 (adjacent rows) let correlated neighbours inflate K
-                // (35 accepted, 8 false). With 1 x 1 the cap binds below 64 (48: 8 loops,
-                // 64 and up: 10).
-                max_keypoints: 64,
-                keypoint_nms_rows: 1,
-                keypoint_nms_cols: 1,
-                min_patch_overlap_fraction: 0.5,
-                verify_tolerance_z_cells: 1,
-                verify_tolerance_p_cells: 2,
-                max_shift_z_cells: 3,
-                max_shift_p_cells: 16,
-                runner_up_exclusion_s: 0.0,
-                uniqueness_sigma: 2.5,
-                duplicate_radius_m: 0.4,
-                min_corroborating_loops: 1,
-                consistency_tolerance_m: 0.3,
-                // Allowance capped at 0.3 + 0.02 * 20 = 0.7 m, below half a 1.5 m ring. On the
-                // simulated shield tunnel (spin64, 60 m, turn) 0.05 / 8 m kept 5 of 9 true loops
-                // (endpoint -65 %), 0.02 / 20 m all 9 (-85 %).
-                consistency_drift_fraction: 0.02,
-                consistency_window_m: 20.0,
-                field_smoothing_sigma_m: 0.0,
-                acceptance: "null_model".into(),
-                false_alarm_rate: default_false_alarm_rate(),
-                uniqueness_alpha: default_uniqueness_alpha(),
-                min_inliers_floor: default_min_inliers_floor(),
-                resolve_with_prior: true,
-                retrieval: default_retrieval(),
-                retrieval_short_list: default_retrieval_short_list(),
-                retrieval_min_candidates: default_retrieval_min_candidates(),
-                retrieval_neighbour_extents: default_retrieval_neighbour_extents(),
-                require_tracked_loop: default_require_tracked_loop(),
-                heading_from_odometry: default_heading_from_odometry(),
-            },
-            graph: GraphConfig {
-                loop_factor: "five_dof".into(),
-                huber_k: 1.345,
-                landmark_position_sigma_m: 0.05,
-                landmark_axis_sigma: 0.01,
-                odom_translation_sigma_per_m: 0.05,
-                odom_rotation_sigma_per_m: 0.002,
-                odom_across_sigma_ratio: across_ratio(),
-                odom_attitude_sigma_rad: attitude_sigma(),
-                granularity: "submap".into(),
-                max_iterations: 100,
-                sequential: true,
-            },
+            contour: tunnel_contour(),
+            boundary: tunnel_boundary(),
+            descriptor: tunnel_descriptor(),
+            matching: tunnel_matching(),
+            graph: tunnel_graph(),
         }
     }
 
@@ -941,6 +832,145 @@ impl DecodConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// The tunnel preset's submap schedule and range window.
+fn tunnel_submap() -> SubmapConfig {
+    // Schedule and range measured on the simulated shield tunnel (6 m bore, 1.5 m
+    // rings, bolt pockets 0.2 m off each seam; Ouster-like 64-beam sensor, 45 deg
+    // vertical field of view, 1.5 m/s, 60 m out and back): a spinning sensor sees the
+    // crown only beyond r / tan(VFoV / 2) ~ 7 m, and two views of one ring agree only
+    // when both were taken 4-8 m from it (median K 15 against 0-6 for every other
+    // distance pair, and 0 beyond 12 m). The paper's 8 s / 30 m gave 1 loop (endpoint
+    // 1.43 m of 1.70 m); 2 s (one submap per 3 m, every ring seen from 4-8 m in both
+    // traversals) with 12 m (the best-observed view the database keeps is then a near
+    // one) gave 10 true loops, 0 false, endpoint 0.25 m. 11 m: 8, 14 m: 5 loops; below
+    // 10 m most submaps fail the elongation test. Windows of 20 scans (3 m of travel)
+    // beat 10, 15, 25 and 30 at this range.
+    SubmapConfig {
+        scans_per_submap: 20,
+        interval_s: 2.0,
+        voxel_m: 0.055,
+        min_range_m: 0.5,
+        max_range_m: 12.0,
+        min_points: 500,
+        rebuild_on_correction: true,
+        odometry_gap_periods: 5.0,
+    }
+}
+
+/// The tunnel preset's contour fit.
+fn tunnel_contour() -> ContourConfig {
+    ContourConfig {
+        model: "auto".into(),
+        inlier_distance_m: 0.18,
+        min_inlier_fraction: 0.9,
+        max_fit_points: 5_000,
+        polar_bins: 180,
+        polar_smoothing_bins: 1.5,
+        auto_polar_ratio: 0.5,
+    }
+}
+
+/// The tunnel preset's boundary detector.
+fn tunnel_boundary() -> BoundaryConfig {
+    BoundaryConfig {
+        profile_bin_m: 0.01,
+        dog_sigma_small_m: 0.025,
+        dog_sigma_large_m: 0.10,
+        nms_radius_m: 0.8,
+        min_strength_m: 0.002,
+        profile_sectors: 32,
+        min_snr: 3.0,
+    }
+}
+
+/// The tunnel preset's descriptor grid.
+fn tunnel_descriptor() -> DescriptorConfig {
+    DescriptorConfig {
+        rows: 16,
+        cols: 256,
+        half_length_m: 2.4,
+        bottom_mask_deg: 30.0,
+        min_points_per_cell: 1,
+        axial_interpolation: false,
+    }
+}
+
+/// The tunnel preset's matcher and acceptance.
+fn tunnel_matching() -> MatchingConfig {
+    MatchingConfig {
+        patch_rows: 9,
+        patch_cols: 33,
+        sigma_z_cells: 3.0,
+        sigma_p_cells: 11.0,
+        min_overlap_fraction: 0.25,
+        // Above the paper's 9 (its 15 "for high precision", plus one): on the simulated
+        // shield tunnel, whose segment layout repeats every two rings (3 m), wrong-ring
+        // candidates reached K = 13-17 and two passed the uniqueness test (K 13 and 15
+        // against runner-ups of 3 and 4, 9 m off); true accepted loops had K 13-27
+        // (one of ten below 16).
+        min_inliers: 16,
+        uniqueness_ratio: 2.0,
+        min_time_separation_s: 30.0,
+        normalisation: "five_variable".into(),
+        sign_only: false,
+        verification: true,
+        // Suppression 1 x 1 cell (was 1 x 4): tunnel texture (seams, pocket edges) is
+        // narrow along p, so wider suppression left ~25 keypoints per descriptor and
+        // true pairs too few inliers to clear the uniqueness margin. On the simulated
+        // shield tunnel (2 s / 12 m schedule): 1 x 4: 5 loops, 1 x 2: 6-8, 1 x 1: 10,
+        // all true; 2 x 1: 8; 0 x 1 (adjacent rows) let correlated neighbours inflate K
+        // (35 accepted, 8 false). With 1 x 1 the cap binds below 64 (48: 8 loops,
+        // 64 and up: 10).
+        max_keypoints: 64,
+        keypoint_nms_rows: 1,
+        keypoint_nms_cols: 1,
+        min_patch_overlap_fraction: 0.5,
+        verify_tolerance_z_cells: 1,
+        verify_tolerance_p_cells: 2,
+        max_shift_z_cells: 3,
+        max_shift_p_cells: 16,
+        runner_up_exclusion_s: 0.0,
+        uniqueness_sigma: 2.5,
+        duplicate_radius_m: 0.4,
+        min_corroborating_loops: 1,
+        consistency_tolerance_m: 0.3,
+        // Allowance capped at 0.3 + 0.02 * 20 = 0.7 m, below half a 1.5 m ring. On the
+        // simulated shield tunnel (spin64, 60 m, turn) 0.05 / 8 m kept 5 of 9 true loops
+        // (endpoint -65 %), 0.02 / 20 m all 9 (-85 %).
+        consistency_drift_fraction: 0.02,
+        consistency_window_m: 20.0,
+        field_smoothing_sigma_m: 0.0,
+        acceptance: "null_model".into(),
+        false_alarm_rate: default_false_alarm_rate(),
+        uniqueness_alpha: default_uniqueness_alpha(),
+        min_inliers_floor: default_min_inliers_floor(),
+        resolve_with_prior: true,
+        retrieval: default_retrieval(),
+        retrieval_short_list: default_retrieval_short_list(),
+        retrieval_min_candidates: default_retrieval_min_candidates(),
+        retrieval_neighbour_extents: default_retrieval_neighbour_extents(),
+        require_tracked_loop: default_require_tracked_loop(),
+        heading_from_odometry: default_heading_from_odometry(),
+    }
+}
+
+/// The tunnel preset's pose graph.
+fn tunnel_graph() -> GraphConfig {
+    GraphConfig {
+        loop_factor: "five_dof".into(),
+        huber_k: 1.345,
+        landmark_position_sigma_m: 0.05,
+        landmark_axis_sigma: 0.01,
+        odom_translation_sigma_per_m: 0.05,
+        odom_rotation_sigma_per_m: 0.002,
+        odom_across_sigma_ratio: across_ratio(),
+        odom_attitude_sigma_rad: attitude_sigma(),
+        granularity: "submap".into(),
+        max_iterations: 100,
+        sequential: true,
     }
 }
 
