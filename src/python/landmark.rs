@@ -27,6 +27,18 @@ impl PyLandmark {
     }
 }
 
+/// The contour of a landmark given from Python, (cols, 2) in the section's `(e1, e2)` frame.
+fn contour_points(contour: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f64; 2]>> {
+    let c = contour.as_array();
+    if c.ncols() != 2 {
+        return Err(PyValueError::new_err(format!(
+            "`contour` must have shape (cols, 2), got {:?}",
+            c.shape()
+        )));
+    }
+    Ok(c.rows().into_iter().map(|r| [r[0], r[1]]).collect())
+}
+
 #[pymethods]
 impl PyLandmark {
     /// Builds a landmark from arrays (for descriptors computed elsewhere, and tests).
@@ -76,19 +88,7 @@ impl PyLandmark {
                 .map(|c| f(std::f64::consts::TAU * (c as f64 + 0.5) / cols as f64))
                 .collect()
         };
-        let contour = match contour {
-            Some(c) => {
-                let c = c.as_array();
-                if c.ncols() != 2 {
-                    return Err(PyValueError::new_err(format!(
-                        "`contour` must have shape (cols, 2), got {:?}",
-                        c.shape()
-                    )));
-                }
-                c.rows().into_iter().map(|r| [r[0], r[1]]).collect()
-            }
-            None => Vec::new(),
-        };
+        let contour = contour.map_or_else(|| Ok(Vec::new()), |c| contour_points(&c))?;
         let landmark = Landmark {
             submap_stamp,
             scan_stamps: scan_stamps
