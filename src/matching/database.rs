@@ -10,7 +10,8 @@
 //! `K >= min_inliers` AND it is unique: `S_best >= uniqueness_ratio * S_runner_up` and
 //! `K_best - K_runner_up >= uniqueness_sigma * sqrt(K_best + K_runner_up)`, where the
 //! runner-up is the best score among all OTHER eligible candidates (optionally not those
-//! within `runner_up_exclusion_s` of the best, which may be a second view of the same joint).
+//! within `runner_up_exclusion_s` of the best, which may be a second view of the same joint,
+//! nor those that put the query where the best puts it, `runner_up_same_place_rows`).
 //! Identical precast joints score as high as the true joint (often higher), so no absolute
 //! threshold can reject aliasing; only a margin over the runner-up can. Measured on the
 //! synthetic sets (tunnel grid, random views): an aliased corridor (4 identical joints,
@@ -741,7 +742,11 @@ impl LandmarkDatabase {
         } else {
             distinct_boundaries(&self.boundaries, &eligible)
         };
-        let mut result = decide(q, entries, &self.boundaries, &pairs, family, cfg);
+        let placed = Placement {
+            positions: &self.positions,
+            directions: &self.directions,
+        };
+        let mut result = decide(q, entries, &self.boundaries, placed, &pairs, family, cfg);
         result.eligible = eligible.len();
         if eligible.is_empty() && !entries.is_empty() {
             result.rejection = Some(Rejection::Ineligible);
@@ -835,30 +840,96 @@ fn judge(pair: &PairResult, result: &QueryResult, cfg: &MatchingConfig) -> Optio
     }
 }
 
+/// The database's entry positions and directions ([`LandmarkDatabase::set_positions`],
+/// [`LandmarkDatabase::set_directions`]; NaN where unset).
+#[derive(Clone, Copy)]
+struct Placement<'a> {
+    positions: &'a [[f64; 3]],
+    directions: &'a [[f64; 3]],
+}
+
+impl Placement<'_> {
+    /// Where `pair` with entry `index` puts the query's boundary, in the database's frame:
+    /// the entry's position moved by the pair's axial offset along the entry's direction
+    /// under the pair's heading (`selection.effective_db_origin` in the Python package does
+    /// the same in the entry's submap frame). None for an unplaced or unoriented entry.
+    fn implied(&self, index: usize, pair: &PairResult) -> Option<[f64; 3]> {
+        let p = self
+            .positions
+            .get(index)
+            .filter(|p| p.iter().all(|v| v.is_finite()))?;
+        let d = self
+            .directions
+            .get(index)
+            .filter(|d| d.iter().all(|v| v.is_finite()))?;
+        let norm = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if norm == 0.0 {
+            return None;
+        }
+        let sign = match pair.heading {
+            Heading::Forward => 1.0,
+            Heading::Reversed => -1.0,
+        };
+        let shift = pair.dz_m * sign / norm;
+        Some([
+            p[0] + shift * d[0],
+            p[1] + shift * d[1],
+            p[2] + shift * d[2],
+        ])
+    }
+}
+
+/// The runner-up of `best` among `pairs`: the best other candidate that is neither a view of
+/// the same boundary, nor within `runner_up_exclusion_s` of it, nor the same place
+/// (`runner_up_same_place_rows`).
+fn runner_up<'p>(
+    best: Option<&(usize, PairResult)>,
+    pairs: &'p [(usize, PairResult)],
+    entries: &[Arc<PreparedLandmark>],
+    boundaries: &[u64],
+    placed: Placement<'_>,
+    cfg: &MatchingConfig,
+) -> Option<&'p (usize, PairResult)> {
+    let best_stamp = best.map(|b| entries[b.0].landmark.submap_stamp);
+    let boundary = |i: usize| boundaries.get(i).copied().unwrap_or(u64::MAX - i as u64);
+    let same_place = best.and_then(|(i, p)| {
+        let radius = cfg.runner_up_same_place_rows * entries[*i].landmark.descriptor.cell_z_m;
+        (radius > 0.0)
+            .then(|| placed.implied(*i, p))
+            .flatten()
+            .map(|at| (at, radius))
+    });
+    let mut second: Option<&(usize, PairResult)> = None;
+    for item in pairs {
+        let same = best.is_some_and(|b| boundary(b.0) == boundary(item.0));
+        let excluded = best_stamp.is_some_and(|t| {
+            (entries[item.0].landmark.submap_stamp - t).abs() < cfg.runner_up_exclusion_s
+        });
+        let merged = same_place.is_some_and(|(at, radius)| {
+            placed
+                .implied(item.0, &item.1)
+                .is_some_and(|here| distance2(&at, &here) <= radius * radius)
+        });
+        if !same && !excluded && !merged && ranks_above(item, second) {
+            second = Some(item);
+        }
+    }
+    second
+}
+
 /// Ranks the candidates and applies the acceptance rule (module docs).
 fn decide(
     q: &PreparedLandmark,
     entries: &[Arc<PreparedLandmark>],
     boundaries: &[u64],
+    placed: Placement<'_>,
     pairs: &[(usize, PairResult)],
     family: usize,
     cfg: &MatchingConfig,
 ) -> QueryResult {
     let query = &*q.landmark;
     let best = best_pair(pairs);
-    // Runner-up: the best other candidate not excluded as a view of the same joint.
-    let best_stamp = best.map(|b| entries[b.0].landmark.submap_stamp);
-    let mut second: Option<&(usize, PairResult)> = None;
-    let boundary = |i: usize| boundaries.get(i).copied().unwrap_or(u64::MAX - i as u64);
-    for item in pairs {
-        let same = best.is_some_and(|b| boundary(b.0) == boundary(item.0));
-        let excluded = best_stamp.is_some_and(|t| {
-            (entries[item.0].landmark.submap_stamp - t).abs() < cfg.runner_up_exclusion_s
-        });
-        if !same && !excluded && ranks_above(item, second) {
-            second = Some(item);
-        }
-    }
+    let second = runner_up(best, pairs, entries, boundaries, placed, cfg);
     let mut result = QueryResult {
         query_stamp: query.submap_stamp,
         query_origin_in_submap: query.origin_in_submap,

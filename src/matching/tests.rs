@@ -554,6 +554,59 @@ fn views_of_one_boundary_are_one_candidate() {
     ));
 }
 
+/// Two views of joint 8 entered as two boundaries, the second's origin one row along the
+/// axis (as a neighbouring ring aligns, one ring's shift away), placed at `second_at`.
+fn two_boundaries_one_place(second_at: f64) -> (LandmarkDatabase, Landmark) {
+    let j = joint(1, 8);
+    let cell = Grid::tunnel().cell_z_m;
+    let shifted = Observation {
+        shift_z_m: cell,
+        ..later(8.0)
+    };
+    let mut db = LandmarkDatabase::new(&cfg());
+    db.extend(vec![
+        j.observe(&Observation::default(), 1),
+        j.observe(&shifted, 2),
+    ])
+    .unwrap();
+    db.set_positions(&[0, 1], &[[0.0, 0.0, 0.0], [second_at, 0.0, 0.0]])
+        .unwrap();
+    db.set_directions(&[0, 1], &[[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+        .unwrap();
+    (db, j.observe(&later(500.0), 3))
+}
+
+#[test]
+fn a_runner_up_that_names_the_same_place_is_not_a_competitor() {
+    let cell = Grid::tunnel().cell_z_m;
+    // The second entry's origin is one row further along the axis, and its pair's offset
+    // brings it back: both candidates put the query at x = 0.
+    let (db, q) = two_boundaries_one_place(cell);
+    let r = db.query(&q, &cfg()).unwrap();
+    assert!(r.accepted, "{r:?}");
+    assert_eq!(r.runner_up_index, None, "{r:?}");
+    // The rule off: the second view is a strong runner-up, as before.
+    let mut off = cfg();
+    off.runner_up_same_place_rows = 0.0;
+    let r = db.query(&q, &off).unwrap();
+    assert_eq!(r.rejection, Some(Rejection::NotUnique), "{r:?}");
+    // The same surface 1.5 m away (an identical joint elsewhere): another place, aliased.
+    let (db, q) = two_boundaries_one_place(1.5 + cell);
+    let r = db.query(&q, &cfg()).unwrap();
+    assert_eq!(r.rejection, Some(Rejection::NotUnique), "{r:?}");
+    // Unplaced entries (a survey's database) are never merged.
+    let j = joint(1, 8);
+    let mut unplaced = LandmarkDatabase::new(&cfg());
+    unplaced
+        .extend(vec![
+            j.observe(&Observation::default(), 1),
+            j.observe(&later(8.0), 2),
+        ])
+        .unwrap();
+    let r = unplaced.query(&q, &cfg()).unwrap();
+    assert_eq!(r.rejection, Some(Rejection::NotUnique), "{r:?}");
+}
+
 /// A database of `n` distinct joints of one pipe (one view each) on `grid`, and `queries`
 /// revisits of some of them (half reversed) plus as many queries of joints it does not hold.
 fn retrieval_set(grid: Grid, n: u64, queries: u64, seed: u64) -> (Vec<Landmark>, Vec<Landmark>) {
