@@ -751,6 +751,11 @@ impl DecodConfig {
                 "matching.uniqueness_alpha",
                 self.matching.uniqueness_alpha > 0.0 && self.matching.uniqueness_alpha < 1.0,
             ),
+            (
+                "matching.runner_up_same_place_rows",
+                self.matching.runner_up_same_place_rows >= 0.0
+                    && self.matching.runner_up_same_place_rows.is_finite(),
+            ),
         ] {
             if !ok {
                 return Err(DecodError::config(
@@ -1054,5 +1059,11 @@ mod tests {
             .map(|e| e.to_string())
             .unwrap_or_default();
         assert!(err.contains("submap.voxel_m"), "{err}");
+        let toml = "[matching]\nrunner_up_same_place_rows = -0.5\n";
+        let err = DecodConfig::from_toml_str(toml, Preset::Tunnel)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(err.contains("matching.runner_up_same_place_rows"), "{err}");
     }
 }
