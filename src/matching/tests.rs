@@ -555,8 +555,9 @@ fn views_of_one_boundary_are_one_candidate() {
 }
 
 /// Two views of joint 8 entered as two boundaries, the second's origin one row along the
-/// axis (as a neighbouring ring aligns, one ring's shift away), placed at `second_at`.
-fn two_boundaries_one_place(second_at: f64) -> (LandmarkDatabase, Landmark) {
+/// axis (as a neighbouring ring aligns, one ring's shift away), placed at `second_at` (none:
+/// unplaced, as in a survey's database); and a query of the joint.
+fn two_boundaries_one_place(second_at: Option<f64>) -> (LandmarkDatabase, Landmark) {
     let j = joint(1, 8);
     let cell = Grid::tunnel().cell_z_m;
     let shifted = Observation {
@@ -569,10 +570,12 @@ fn two_boundaries_one_place(second_at: f64) -> (LandmarkDatabase, Landmark) {
         j.observe(&shifted, 2),
     ])
     .unwrap();
-    db.set_positions(&[0, 1], &[[0.0, 0.0, 0.0], [second_at, 0.0, 0.0]])
-        .unwrap();
-    db.set_directions(&[0, 1], &[[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
-        .unwrap();
+    if let Some(x) = second_at {
+        db.set_positions(&[0, 1], &[[0.0, 0.0, 0.0], [x, 0.0, 0.0]])
+            .unwrap();
+        db.set_directions(&[0, 1], &[[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+            .unwrap();
+    }
     (db, j.observe(&later(500.0), 3))
 }
 
@@ -581,7 +584,7 @@ fn a_runner_up_that_names_the_same_place_is_not_a_competitor() {
     let cell = Grid::tunnel().cell_z_m;
     // The second entry's origin is one row further along the axis, and its pair's offset
     // brings it back: both candidates put the query at x = 0.
-    let (db, q) = two_boundaries_one_place(cell);
+    let (db, q) = two_boundaries_one_place(Some(cell));
     let r = db.query(&q, &cfg()).unwrap();
     assert!(r.accepted, "{r:?}");
     assert_eq!(r.runner_up_index, None, "{r:?}");
@@ -591,18 +594,11 @@ fn a_runner_up_that_names_the_same_place_is_not_a_competitor() {
     let r = db.query(&q, &off).unwrap();
     assert_eq!(r.rejection, Some(Rejection::NotUnique), "{r:?}");
     // The same surface 1.5 m away (an identical joint elsewhere): another place, aliased.
-    let (db, q) = two_boundaries_one_place(1.5 + cell);
+    let (db, q) = two_boundaries_one_place(Some(1.5 + cell));
     let r = db.query(&q, &cfg()).unwrap();
     assert_eq!(r.rejection, Some(Rejection::NotUnique), "{r:?}");
     // Unplaced entries (a survey's database) are never merged.
-    let j = joint(1, 8);
-    let mut unplaced = LandmarkDatabase::new(&cfg());
-    unplaced
-        .extend(vec![
-            j.observe(&Observation::default(), 1),
-            j.observe(&later(8.0), 2),
-        ])
-        .unwrap();
+    let (unplaced, q) = two_boundaries_one_place(None);
     let r = unplaced.query(&q, &cfg()).unwrap();
     assert_eq!(r.rejection, Some(Rejection::NotUnique), "{r:?}");
 }
