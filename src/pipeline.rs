@@ -221,7 +221,7 @@ fn process(
 ) -> Result<Vec<ProcessedSubmap>> {
     let submaps = windows
         .par_iter()
-        .map(|w| Submap::from_window(w, &config.submap))
+        .map(|w| Submap::from_built_window(w, &config.submap))
         .collect::<Result<Vec<_>>>()?;
     drop(windows);
     let (outcomes, ()) = rayon::join(
