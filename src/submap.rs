@@ -125,9 +125,13 @@ fn accumulate<K>(
         let anchor_from_body = (anchor_from_world * scan.world_from_body).to_homogeneous();
         let rotation = anchor_from_body.fixed_view::<3, 3>(0, 0).into_owned();
         let translation = anchor_from_body.fixed_view::<3, 1>(0, 3).into_owned();
+        // A point farther from its sensor than the range plus the sensor's distance from the
+        // anchor (and a micrometre for rounding) lies beyond the range from the anchor too.
+        let beyond = (max_r2.sqrt() + translation.norm() + 1e-6).powi(2);
         for p in &scan.points_in_body {
             let body = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-            if body.norm_squared() < min_r2 {
+            let r2 = body.norm_squared();
+            if r2 < min_r2 || r2 > beyond {
                 continue;
             }
             let q = rotation * body + translation;
