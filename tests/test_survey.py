@@ -20,7 +20,15 @@ from decod_rs.pipeline import run_log
 from decod_rs.run_files import read_loops_csv
 from decod_rs.sim import simulate
 from decod_rs.sim.changes import changed_joints
-from decod_rs.survey import SURVEY_FILE, chainage_along, load_survey, survey_origins
+from decod_rs.survey import (
+    SURVEY_FILE,
+    chainage_along,
+    load_survey,
+    survey_axes,
+    survey_config,
+    survey_database,
+    survey_origins,
+)
 
 LENGTH_M = 30.0
 WORLD = 21
@@ -230,6 +238,23 @@ def test_every_run_writes_a_survey_and_other_versions_are_refused(
             progress=False,
         )
     assert not (tmp_path / "tunnel" / "corrected.tum").exists()
+
+
+def test_survey_database_is_placed_and_oriented_in_the_survey_frame(
+    runs: dict[str, Path],
+) -> None:
+    """The re-inspection's database: one candidate per survey joint, at its origin and along
+    its axis in the survey's corrected frame (what the same-place rule compares)."""
+    survey = load_survey(runs["survey"])
+    db = survey_database(survey, survey_config(survey))
+    assert db.boundaries() == [int(j) for j in survey.joint_ids]
+    np.testing.assert_allclose(db.positions(), survey_origins(survey))
+    axes = survey_axes(survey)
+    np.testing.assert_allclose(db.directions(), axes)
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=1), 1.0, atol=1e-9)
+    # Oriented with the sensor's forward: along the survey anchor's x axis.
+    forward = np.array([survey.anchor_pose(lm.submap_stamp)[:3, 0] for lm in survey.landmarks])
+    assert np.all(np.einsum("ij,ij->i", axes, forward) > 0.0)
 
 
 def test_short_list_holds_the_exhaustive_top1(runs: dict[str, Path]) -> None:

@@ -270,8 +270,10 @@ class LandmarkDatabase:
     def set_directions(self, indices: Sequence[int], directions: ArrayLike) -> None:
         """Orient stored views: ``directions`` (k, 3), the corridor axes of ``indices`` (each
         landmark's axis, oriented with the sensor's forward) in the frame of
-        :meth:`set_positions`. Only a run's own odometry frame qualifies (queries bring their
-        axes in it to :meth:`query_batch_prepared`)."""
+        :meth:`set_positions`. The same-place rule (``matching.runner_up_same_place_rows``)
+        compares stored views with each other, so any frame they share serves it; the
+        heading prior compares them with a query's axis, which must then be in the same
+        frame (a run's own odometry, :meth:`query_batch_prepared`)."""
         array = np.ascontiguousarray(directions, dtype=np.float64)
         self._db.set_directions([int(i) for i in indices], array)
 

@@ -401,6 +401,31 @@ def survey_origins(survey: Survey) -> FloatArray:
     return out
 
 
+def survey_axes(survey: Survey) -> FloatArray:
+    """(L, 3) the survey's boundary axes (oriented with their sensor's forward) in its
+    corrected frame."""
+    out = np.empty((len(survey.landmarks), 3))
+    for k, lm in enumerate(survey.landmarks):
+        out[k] = survey.anchor_pose(lm.submap_stamp)[:3, :3] @ np.asarray(lm.axis)
+    return out
+
+
+def survey_database(survey: Survey, cfg: Config) -> LandmarkDatabase:
+    """The survey's views as a database: one candidate per survey joint, placed and oriented
+    in the survey's corrected frame. The orientation serves the matcher's same-place rule
+    (``matching.runner_up_same_place_rows``: views compared with each other, in the
+    survey's frame); the queries bring no axes, so the heading prior, which would compare a
+    query's odometry frame with the survey's, stays off. Measured on two re-inspections
+    (a second run of the same simulated world, against the first's survey): the 9 m shield
+    with the forward sensor and a turn kept 8 -> 24 cross-session pairs, the horseshoe with
+    64 beams and a turn 635 -> 640, every one within 0.15 m of the truth."""
+    db = LandmarkDatabase(cfg)
+    stored = db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], survey_origins(survey))
+    if stored:
+        db.set_directions(stored, survey_axes(survey))
+    return db
+
+
 def cross_session(
     survey: Survey,
     landmarks: list[Landmark],
@@ -414,8 +439,7 @@ def cross_session(
     ``along``: path length along the run's odometry at a stamp; ``views``: the views of each
     landmark's track (a pair between boundaries each detected once does not stand alone:
     :func:`decod_rs.selection.drop_if_untracked`; None: not applied)."""
-    db = LandmarkDatabase(cfg)
-    db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], survey_origins(survey))
+    db = survey_database(survey, cfg)
     results = db.query_batch(landmarks, cross_session=True) if landmarks else []
     pairs = _pairs(survey, landmarks, results, anchors)
     tracked = None

@@ -312,11 +312,13 @@ impl LandmarkDatabase {
 
     /// Orients entries: `directions[k]` is the corridor axis of entry `indices[k]` (the
     /// landmark's axis, oriented with the sensor's forward) in the frame of
-    /// [`Self::set_positions`]. A query that brings its own axis in that frame
-    /// ([`Self::query_batch_prepared`]) is then compared with such an entry under the heading
+    /// [`Self::set_positions`]. Entries placed and oriented in one frame are compared with
+    /// each other by the same-place rule (`runner_up_same_place_rows`), in any frame they
+    /// share. A query that brings its own axis in that frame
+    /// ([`Self::query_batch_prepared`]) is also compared with such an entry under the heading
     /// the odometry allows only ([`super::heading::prior`]), when the config's
-    /// `heading_from_odometry` is on. Only a run's own frame qualifies: a survey's corrected
-    /// frame is not the new run's odometry frame.
+    /// `heading_from_odometry` is on; a re-inspection's queries bring none, since a survey's
+    /// corrected frame is not the new run's odometry frame.
     pub fn set_directions(&mut self, indices: &[usize], directions: &[[f64; 3]]) -> Result<()> {
         check_rows("directions", indices, directions, self.entries.len())?;
         if let Some((&i, d)) = indices
