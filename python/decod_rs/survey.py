@@ -274,21 +274,36 @@ def _pairs(
     return out
 
 
+#: Rows of the pairs' agreement matrix computed at a time (:func:`_consensus_rotation`):
+#: memory stays at this many times the pair count, whatever the survey's length.
+AGREEMENT_ROWS = 512
+
+
+def _agreement(rotations: FloatArray, rows: slice) -> NDArray[np.bool_]:
+    """Whether the rotations of ``rows`` agree with each of ``rotations`` (N, 3, 3): their
+    relative angle ``arccos((tr(A^T B) - 1) / 2)`` below ``ROTATION_AGREEMENT_RAD``, with
+    ``tr(A^T B)`` the sum of the elementwise product."""
+    flat = rotations.reshape(len(rotations), 9)
+    cos = np.clip((flat[rows] @ flat.T - 1.0) / 2.0, -1.0, 1.0)
+    return np.asarray(np.arccos(cos) < ROTATION_AGREEMENT_RAD)
+
+
 def _consensus_rotation(pairs: list[_Pair]) -> tuple[FloatArray, list[bool]]:
     """The rotation most pairs agree with (chordal mean of the largest agreeing group) and
-    which pairs agree with it."""
-
-    def angle(a: FloatArray, b: FloatArray) -> float:
-        return float(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0)))
-
-    support = [
-        [angle(p.rotation, q.rotation) < ROTATION_AGREEMENT_RAD for q in pairs] for p in pairs
-    ]
-    best = int(np.argmax([sum(s) for s in support]))
-    agree = support[best]
-    chosen = [p.rotation for p, ok in zip(pairs, agree, strict=True) if ok]
-    mean = _project_so3(np.sum(chosen, axis=0))
-    return mean, agree
+    which pairs agree with it. Every pair against every other, a block of rows at a time
+    (one angle per pair of pairs in Python took 4.1 s of a 10 s re-inspection with 640
+    pairs; the first best on a tie, as before)."""
+    rotations = np.stack([p.rotation for p in pairs])
+    support = np.concatenate(
+        [
+            _agreement(rotations, slice(i, i + AGREEMENT_ROWS)).sum(axis=1)
+            for i in range(0, len(pairs), AGREEMENT_ROWS)
+        ]
+    )
+    best = int(np.argmax(support))
+    agree = _agreement(rotations, slice(best, best + 1))[0]
+    mean = _project_so3(np.sum(rotations[agree], axis=0))
+    return mean, [bool(a) for a in agree]
 
 
 def _select(
