@@ -240,6 +240,23 @@ def test_every_run_writes_a_survey_and_other_versions_are_refused(
     assert not (tmp_path / "tunnel" / "corrected.tum").exists()
 
 
+def test_no_plots_leaves_out_the_changes_figure(runs: dict[str, Path], tmp_path: Path) -> None:
+    """``--no-plots`` (``plots=False``) writes the change table but not its figure."""
+    out = tmp_path / "again"
+    run_log(
+        runs["sim_again"] / "log",
+        out,
+        preset="pipe",
+        imu_topic="/imu",
+        progress=False,
+        survey=runs["survey"],
+        plots=False,
+    )
+    assert _rows(out / "changes.csv") == _rows(runs["again"] / "changes.csv")
+    assert not (out / "changes.png").exists()
+    assert not list(out.glob("*.png"))
+
+
 def test_survey_database_is_placed_and_oriented_in_the_survey_frame(
     runs: dict[str, Path],
 ) -> None:

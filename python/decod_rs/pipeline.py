@@ -181,7 +181,7 @@ def finish_run(
 
     t0 = time.perf_counter()
     joints, changes = write_outputs(
-        out, ex, matched, (scans, start), correction, constraints, cfg, stage
+        out, ex, matched, (scans, start), correction, constraints, cfg, stage, plots
     )
     used = constraints if len(correction.graph.loop_weights) else []  # none: odometry stood
     anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)

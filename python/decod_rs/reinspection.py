@@ -153,12 +153,14 @@ class Reinspection:
         joint_of: NDArray[np.int64],
         chainage_m: FloatArray,
         cfg: Config,
+        plot: bool = True,
     ) -> dict[str, Any]:
-        """``changes.csv`` and ``changes.png``; returns the ``report.json`` section."""
+        """``changes.csv`` and (``plot``) ``changes.png``; returns the ``report.json``
+        section."""
         pairs = self.change_pairs()
         changes = joint_changes(pairs, self.cross.survey, landmarks, joint_of, chainage_m, cfg)
         write_changes_csv(out / "changes.csv", changes)
-        if changes:
+        if changes and plot:
             plot_changes(out / "changes.png", changes)
         return changes_summary(changes)
 

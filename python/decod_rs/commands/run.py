@@ -59,7 +59,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="no sequential boundary factors within a pass (graph.sequential = false): the "
         "paper's loops-only graph",
     )
-    p.add_argument("--no-plots", action="store_true")
+    p.add_argument(
+        "--no-plots",
+        action="store_true",
+        help="skip the PNG figures (trajectory, descriptors; changes.png with --survey)",
+    )
     p.add_argument(
         "--map",
         action="store_true",

@@ -113,11 +113,12 @@ def write_outputs(
     constraints: list[LoopConstraint],
     cfg: Config,
     stage: Reinspection | None = None,
+    plots: bool = True,
 ) -> tuple[list[Joint], dict[str, Any] | None]:
     """The contract's files: trajectories, loops, landmarks, joints, the graph (on the
     odometry the graph started from: ``odometry[1]``), this run's survey; with ``stage``
     (``--survey``) the cross-session loop rows, survey joint ids and the change report
-    (returned: its ``report.json`` section)."""
+    (returned: its ``report.json`` section; its figure only with ``plots``)."""
     (scan_stamps, scan_odom), graph_odom = odometry
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     write_tum(out / "odometry.tum", scan_stamps, scan_odom)
@@ -148,7 +149,7 @@ def write_outputs(
     )
     changes = None
     if stage is not None:
-        changes = stage.write_changes(out, lms, joint_of, chainage, cfg)
+        changes = stage.write_changes(out, lms, joint_of, chainage, cfg, plot=plots)
     write_landmarks_csv(
         out / "landmarks.csv",
         LandmarkTable(
