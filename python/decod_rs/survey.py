@@ -407,22 +407,25 @@ def _graph(
     return np.stack([result.atPose3(k).matrix() for k in range(n)])
 
 
+def _landmark_anchor_poses(survey: Survey) -> FloatArray:
+    """(L, 4, 4) the corrected pose of each survey landmark's anchor."""
+    poses = [survey.anchor_pose(lm.submap_stamp) for lm in survey.landmarks]
+    return np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+
+
 def survey_origins(survey: Survey) -> FloatArray:
     """(L, 3) the survey's boundary origins in its corrected frame."""
-    out = np.empty((len(survey.landmarks), 3))
-    for k, lm in enumerate(survey.landmarks):
-        pose = survey.anchor_pose(lm.submap_stamp)
-        out[k] = pose[:3, :3] @ np.asarray(lm.origin) + pose[:3, 3]
-    return out
+    poses = _landmark_anchor_poses(survey)
+    origins = np.array([lm.origin for lm in survey.landmarks], dtype=np.float64).reshape(-1, 3)
+    return np.einsum("nij,nj->ni", poses[:, :3, :3], origins) + poses[:, :3, 3]
 
 
 def survey_axes(survey: Survey) -> FloatArray:
     """(L, 3) the survey's boundary axes (oriented with their sensor's forward) in its
     corrected frame."""
-    out = np.empty((len(survey.landmarks), 3))
-    for k, lm in enumerate(survey.landmarks):
-        out[k] = survey.anchor_pose(lm.submap_stamp)[:3, :3] @ np.asarray(lm.axis)
-    return out
+    poses = _landmark_anchor_poses(survey)
+    axes = np.array([lm.axis for lm in survey.landmarks], dtype=np.float64).reshape(-1, 3)
+    return np.einsum("nij,nj->ni", poses[:, :3, :3], axes)
 
 
 def survey_database(survey: Survey, cfg: Config) -> LandmarkDatabase:

@@ -337,6 +337,14 @@ impl LandmarkDatabase {
         Ok(())
     }
 
+    /// The entries' positions and directions, for the matcher's geometry.
+    fn placement(&self) -> Placement<'_> {
+        Placement {
+            positions: &self.positions,
+            directions: &self.directions,
+        }
+    }
+
     /// Each entry's direction (NaN where none was set, [`Self::set_directions`]).
     pub fn directions(&self) -> &[[f64; 3]] {
         &self.directions
@@ -627,7 +635,8 @@ impl LandmarkDatabase {
         compared: &[bool],
         cfg: &MatchingConfig,
     ) -> Vec<usize> {
-        let placed = |i: usize| self.positions.get(i).filter(|p| p[0].is_finite());
+        let placement = self.placement();
+        let placed = |i: usize| placement.position(i);
         let (Some(centre), Some(entry)) = (placed(best), self.entries.get(best)) else {
             return Vec::new();
         };
@@ -744,10 +753,7 @@ impl LandmarkDatabase {
         } else {
             distinct_boundaries(&self.boundaries, &eligible)
         };
-        let placed = Placement {
-            positions: &self.positions,
-            directions: &self.directions,
-        };
+        let placed = self.placement();
         let mut result = decide(q, entries, &self.boundaries, placed, &pairs, family, cfg);
         result.eligible = eligible.len();
         if eligible.is_empty() && !entries.is_empty() {
@@ -851,23 +857,21 @@ struct Placement<'a> {
 }
 
 impl Placement<'_> {
+    /// Entry `index`'s position, if it was placed (set rows are finite, unset ones NaN:
+    /// `check_rows`).
+    fn position(&self, index: usize) -> Option<&[f64; 3]> {
+        self.positions.get(index).filter(|p| p[0].is_finite())
+    }
+
     /// Where `pair` with entry `index` puts the query's boundary, in the database's frame:
     /// the entry's position moved by the pair's axial offset along the entry's direction
     /// under the pair's heading (`selection.effective_db_origin` in the Python package does
-    /// the same in the entry's submap frame). None for an unplaced or unoriented entry.
+    /// the same in the entry's submap frame). None for an unplaced or unoriented entry (a
+    /// set direction is finite and non-zero: [`LandmarkDatabase::set_directions`]).
     fn implied(&self, index: usize, pair: &PairResult) -> Option<[f64; 3]> {
-        let p = self
-            .positions
-            .get(index)
-            .filter(|p| p.iter().all(|v| v.is_finite()))?;
-        let d = self
-            .directions
-            .get(index)
-            .filter(|d| d.iter().all(|v| v.is_finite()))?;
+        let p = self.position(index)?;
+        let d = self.directions.get(index).filter(|d| d[0].is_finite())?;
         let norm = d.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if norm == 0.0 {
-            return None;
-        }
         let sign = match pair.heading {
             Heading::Forward => 1.0,
             Heading::Reversed => -1.0,

@@ -186,79 +186,62 @@ QUICK: dict[str, tuple[str, ...]] = {
 }
 
 
+#: Seed of every fresh-tier cell.
+FRESH_SEED = 7
+
+
+def _fresh(
+    name: str,
+    length_m: float,
+    variant: str,
+    speed_mps: float | None = None,
+    **overrides: float,
+) -> Cell:
+    """A fresh-tier cell: scene, sensor and return mode read from ``name`` (the matrix's
+    naming, ``scene-sensor-return-s7-...``), seed :data:`FRESH_SEED`, held out."""
+    scene, sensor, return_mode = name.split("-")[:3]
+    return Cell(
+        name,
+        scene,
+        sensor,
+        return_mode,
+        FRESH_SEED,
+        length_m,
+        speed_mps=speed_mps,
+        scene_overrides=dict(overrides),
+        held_out=True,
+        variant=variant,
+    )
+
+
 #: The fresh tier: combinations, sizes and speeds the full tier does not have, seed 7, every
 #: cell held out. First run once the code it tests was settled (m95), as a user's first logs
 #: would be: nothing was chosen on them, and what they show is reported as it came out
 #: (README). Every sensor here sees its corridor's walls (:func:`sees_walls`).
 FRESH: tuple[Cell, ...] = (
-    Cell(
-        "pe-spin16-reverse-s7-d0.8",
-        "pe",
-        "spin16",
-        "reverse",
-        7,
-        30.0,
-        scene_overrides={"radius_m": 0.4},
-        held_out=True,
-        variant="pe, diameter 0.8 m",
-    ),
-    Cell(
+    _fresh("pe-spin16-reverse-s7-d0.8", 30.0, "pe, diameter 0.8 m", radius_m=0.4),
+    _fresh(
         "hume-spin16-turn-s7-j2-v0.6",
-        "hume",
-        "spin16",
-        "turn",
-        7,
         30.0,
+        "hume, joint spacing 2 m, 0.6 m/s",
         speed_mps=0.6,
-        scene_overrides={"segment_length_m": 2.0},
-        held_out=True,
-        variant="hume, joint spacing 2 m, 0.6 m/s",
+        segment_length_m=2.0,
     ),
-    Cell(
+    _fresh(
         "shield-avia-reverse-s7-w7-v1.0",
-        "shield",
-        "avia",
-        "reverse",
-        7,
         40.0,
+        "shield, width 7 m, 1 m/s",
         speed_mps=1.0,
-        scene_overrides={"radius_m": 3.5},
-        held_out=True,
-        variant="shield, width 7 m, 1 m/s",
+        radius_m=3.5,
     ),
-    Cell(
-        "horseshoe-spin64-turn-s7-w4",
-        "horseshoe",
-        "spin64",
-        "turn",
-        7,
-        40.0,
-        scene_overrides={"radius_m": 2.0},
-        held_out=True,
-        variant="horseshoe, width 4 m",
-    ),
-    Cell(
-        "shield-spin64-turn-s7-v2.0",
-        "shield",
-        "spin64",
-        "turn",
-        7,
-        40.0,
-        speed_mps=2.0,
-        held_out=True,
-        variant="shield, 2 m/s",
-    ),
-    Cell(
+    _fresh("horseshoe-spin64-turn-s7-w4", 40.0, "horseshoe, width 4 m", radius_m=2.0),
+    _fresh("shield-spin64-turn-s7-v2.0", 40.0, "shield, 2 m/s", speed_mps=2.0),
+    _fresh(
         "hume-avia-reverse-s7-d0.45-v0.3",
-        "hume",
-        "avia",
-        "reverse",
-        7,
         30.0,
+        "hume, diameter 0.45 m, 0.3 m/s",
         speed_mps=0.3,
-        scene_overrides={"radius_m": 0.225},
-        held_out=True,
-        variant="hume, diameter 0.45 m, 0.3 m/s",
+        radius_m=0.225,
     ),
 )
 
