@@ -22,6 +22,10 @@ pub struct CorridorAxis {
     pub singular_values: [f64; 3],
     /// `singular_values[0] / singular_values[1]`: the elongation the check uses.
     pub elongation: f64,
+    /// The three unit principal directions in the order of `singular_values` (the first is
+    /// `axis`), each oriented so that `direction . forward >= 0`: the candidates for the
+    /// axis of a submap whose cloud is not elongated (`crate::extract`, corridor ends).
+    pub directions: [[f64; 3]; 3],
 }
 
 /// PCA of `points` (paper §III-A); the axis is oriented with `forward` (paper §IV-A.2).
@@ -51,10 +55,16 @@ pub fn estimate_axis(points: &[[f32; 3]], forward: [f64; 3]) -> Result<CorridorA
     let mut order = [0usize, 1, 2];
     order.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
     let sv = order.map(|i| eig.eigenvalues[i].max(0.0).sqrt());
-    let mut a: Vector3<f64> = eig.eigenvectors.column(order[0]).into_owned();
-    if a.dot(&Vector3::from(forward)) < 0.0 {
-        a = -a;
-    }
+    let directions = order.map(|i| {
+        let d: Vector3<f64> = eig.eigenvectors.column(i).into_owned();
+        let d = if d.dot(&Vector3::from(forward)) < 0.0 {
+            -d
+        } else {
+            d
+        };
+        [d.x, d.y, d.z]
+    });
+    let a = Vector3::from(directions[0]);
     let elongation = if sv[1] > 0.0 {
         sv[0] / sv[1]
     } else {
@@ -65,6 +75,7 @@ pub fn estimate_axis(points: &[[f32; 3]], forward: [f64; 3]) -> Result<CorridorA
         axis: [a.x, a.y, a.z],
         singular_values: sv,
         elongation,
+        directions,
     })
 }
 

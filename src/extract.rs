@@ -6,10 +6,11 @@ use std::fmt;
 
 use rayon::prelude::*;
 
-use crate::axis::{estimate_axis, refine_axis, transverse_basis};
+use crate::axis::{CorridorAxis, estimate_axis, refine_axis, transverse_basis};
 use crate::boundary::{BoundaryPeak, ChartPoint, detect_boundaries};
 use crate::config::DecodConfig;
 use crate::contour::{ContourFit, fit_contour};
+use crate::corridor_end::trim_end_face;
 use crate::descriptor::{bottom_mask, build_descriptor, column_samples};
 use crate::landmark::Landmark;
 use crate::submap::Submap;
@@ -151,6 +152,9 @@ pub struct SubmapDiagnostics {
     pub dog_sigma_m: f64,
     /// Peak threshold applied, metres.
     pub dog_threshold_m: f64,
+    /// The whole cloud failed the corridor test and the part before an end face in view
+    /// passed it (`crate::corridor_end`): the diagnostics above are that part's.
+    pub end_face: bool,
 }
 
 /// Landmarks, rejections and diagnostics of one submap.
@@ -207,17 +211,11 @@ fn extract_into(
     out.diagnostics.axis = axis.axis;
     out.diagnostics.centroid = axis.centroid;
     out.diagnostics.elongation = axis.elongation;
-    if axis.elongation.is_nan() || axis.elongation < cfg.axis.min_elongation {
-        return Err(RejectionReason::NotElongated {
-            ratio: axis.elongation,
-            min: cfg.axis.min_elongation,
-        });
-    }
-    // 3-4.
-    let frame = fit_frame(submap, cfg, axis.centroid, axis.axis)?;
-    out.diagnostics.axis = frame.a;
-    // 5.
-    let chart = unrolled_chart(points, &frame, cfg, &mut out.diagnostics)?;
+    // 3-5, or the same on the part of the cloud before an end face in view.
+    let (frame, chart) = match corridor(submap, cfg, &axis, &mut out.diagnostics) {
+        Ok(found) => found,
+        Err(reason) => before_end_face(submap, cfg, &axis, &mut out.diagnostics).ok_or(reason)?,
+    };
     // 6. Boundaries.
     let detection = detect_boundaries(
         &chart.points,
@@ -239,6 +237,78 @@ fn extract_into(
     Ok(())
 }
 
+/// Steps 2 (elongation check) to 5 on the whole cloud.
+fn corridor(
+    submap: &Submap,
+    cfg: &DecodConfig,
+    axis: &CorridorAxis,
+    diag: &mut SubmapDiagnostics,
+) -> Result<(CorridorFrame, Chart), RejectionReason> {
+    if axis.elongation.is_nan() || axis.elongation < cfg.axis.min_elongation {
+        return Err(RejectionReason::NotElongated {
+            ratio: axis.elongation,
+            min: cfg.axis.min_elongation,
+        });
+    }
+    // 3-4.
+    let points = &submap.points_in_anchor;
+    let frame = fit_frame(points, submap, cfg, axis.centroid, axis.axis)?;
+    diag.axis = frame.a;
+    // 5.
+    let chart = unrolled_chart(points, &frame, cfg, diag)?;
+    Ok((frame, chart))
+}
+
+/// Steps 3-5 on the points before an end face in view ([`crate::corridor_end`]; not in
+/// the paper), for a submap whose whole cloud failed them (a room closed at both ends stays
+/// rejected, with the whole cloud's reason): the face is looked for
+/// along the sensor's heading and along each principal direction, the face's normal is the
+/// axis, and of the guesses whose trimmed cloud passes the corridor test the one with the
+/// most points on its contour is taken (its diagnostics replace the failed ones). `None`:
+/// no face, or no trimmed cloud that is a corridor.
+fn before_end_face(
+    submap: &Submap,
+    cfg: &DecodConfig,
+    axis: &CorridorAxis,
+    diag: &mut SubmapDiagnostics,
+) -> Option<(CorridorFrame, Chart)> {
+    let slab = cfg.descriptor.half_length_m * 2.0 / cfg.descriptor.rows.max(1) as f64;
+    let guesses = [
+        submap.forward_in_anchor,
+        axis.directions[0],
+        axis.directions[1],
+        axis.directions[2],
+    ];
+    let mut best: Option<(CorridorFrame, Chart, SubmapDiagnostics)> = None;
+    for guess in guesses {
+        let Some((kept, a)) = trim_end_face(&submap.points_in_anchor, guess, slab) else {
+            continue;
+        };
+        let Ok(trimmed) = estimate_axis(&kept, submap.forward_in_anchor) else {
+            continue;
+        };
+        let mut trial = diag.clone();
+        trial.centroid = trimmed.centroid;
+        let Ok(frame) = fit_frame(&kept, submap, cfg, trimmed.centroid, a) else {
+            continue;
+        };
+        trial.axis = frame.a;
+        let Ok(chart) = unrolled_chart(&kept, &frame, cfg, &mut trial) else {
+            continue;
+        };
+        let better = best
+            .as_ref()
+            .is_none_or(|(_, _, b)| trial.contour_inlier_fraction > b.contour_inlier_fraction);
+        if better {
+            best = Some((frame, chart, trial));
+        }
+    }
+    let (frame, chart, mut trial) = best?;
+    trial.end_face = true;
+    *diag = trial;
+    Some((frame, chart))
+}
+
 /// The submap's corridor frame: centroid `c`, axis `a`, basis `e1, e2` (Eq. 1) and the
 /// contour fitted in it.
 struct CorridorFrame {
@@ -254,12 +324,12 @@ struct CorridorFrame {
 /// steps on the axis from the contour residuals; all on the subset, so that the full cloud
 /// is projected and unrolled only once (step 5).
 fn fit_frame(
+    points: &[[f32; 3]],
     submap: &Submap,
     cfg: &DecodConfig,
     c: [f64; 3],
     axis: [f64; 3],
 ) -> Result<CorridorFrame, RejectionReason> {
-    let points = &submap.points_in_anchor;
     let mut a = axis;
     let stride = points
         .len()
@@ -661,6 +731,69 @@ mod tests {
         // Not flipped, they do not agree (the test can fail).
         let (close_unflipped, _) = compare(la, lb, false, 1e-4);
         assert!(close_unflipped < 0.9, "{close_unflipped}");
+    }
+
+    /// The pipe of [`pipe`] from `start` to `end` m, closed there by a face (a disc of
+    /// `face_points` points spread evenly over its area), moved by `rot`.
+    fn pipe_with_end_face(
+        start: f64,
+        end: f64,
+        face_points: usize,
+        rot: Rotation3<f64>,
+    ) -> Vec<[f32; 3]> {
+        let mut pts: Vec<[f32; 3]> = pipe(100_000, Rotation3::identity(), Vector3::zeros())
+            .into_iter()
+            .filter(|p| (start..end).contains(&(p[0] as f64)))
+            .collect();
+        for i in 0..face_points {
+            // Sunflower spiral: even over the disc of radius 0.3 m.
+            let r = 0.3 * ((i as f64 + 0.5) / face_points as f64).sqrt();
+            let t = i as f64 * 2.399_963_229_7;
+            pts.push([end as f32, (r * t.sin()) as f32, (-r * t.cos()) as f32]);
+        }
+        pts.into_iter()
+            .map(|p| {
+                let q = rot * Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                [q.x as f32, q.y as f32, q.z as f32]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_submap_looking_at_the_end_of_the_corridor_keeps_its_boundary() {
+        // What a forward-looking sensor sees of a corridor ending ahead: 0.6 m of pipe wall
+        // (wider than long, so the cloud is not elongated) and an end face with as many
+        // points again.
+        let rot = Rotation3::from_euler_angles(0.02, 0.1, 0.3);
+        let pts = pipe_with_end_face(0.1, 0.7, 12_000, rot);
+        let x = [1.0, 0.0, 0.0];
+        let elongation = estimate_axis(&pts, x).map_or(f64::NAN, |a| a.elongation);
+        assert!(
+            elongation < DecodConfig::pipe().axis.min_elongation,
+            "the test cloud must fail the elongation check: {elongation}"
+        );
+        // The sensor heads 3 degrees off the axis.
+        let forward = rot * Rotation3::from_euler_angles(0.0, 0.0, 0.05) * Vector3::x();
+        let out = run(pts, -Vector3::z(), forward);
+        assert!(out.rejections.is_empty(), "{:?}", out.rejections);
+        assert_eq!(
+            out.landmarks.len(),
+            1,
+            "the groove, and nothing at the face"
+        );
+        let lm = &out.landmarks[0];
+        let err_deg = Vector3::from(lm.axis_in_submap)
+            .angle(&(rot * Vector3::x()))
+            .to_degrees();
+        assert!(err_deg < 0.1, "axis error {err_deg} deg");
+        // The same boundary as the whole pipe gives the usual way.
+        let open = run(pipe(100_000, rot, Vector3::zeros()), -Vector3::z(), forward);
+        let d =
+            Vector3::from(open.landmarks[0].origin_in_submap) - Vector3::from(lm.origin_in_submap);
+        assert!(d.norm() < 2e-3, "{d:?}");
+        // Without the face there is nothing to cut at: the stub stays rejected.
+        let stub = run(pipe_with_end_face(0.1, 0.7, 0, rot), -Vector3::z(), forward);
+        assert_eq!(stub.rejections[0].reason.kind(), "not_elongated");
     }
 
     #[test]

@@ -13,6 +13,7 @@ pub mod axis;
 pub mod boundary;
 pub mod config;
 pub mod contour;
+pub mod corridor_end;
 pub mod descriptor;
 pub mod error;
 pub mod extract;

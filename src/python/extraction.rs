@@ -180,6 +180,9 @@ pub(crate) struct PyDiagnostics {
     dog_sigma_m: f64,
     /// Peak threshold applied, metres.
     dog_threshold_m: f64,
+    /// The cloud was cut before an end face in view (a tunnel's end, a pipe's cap): the
+    /// figures above are the part before it.
+    end_face: bool,
 }
 
 impl From<&SubmapDiagnostics> for PyDiagnostics {
@@ -198,6 +201,7 @@ impl From<&SubmapDiagnostics> for PyDiagnostics {
             boundary_candidates: d.boundary_candidates,
             dog_sigma_m: d.dog_sigma_m,
             dog_threshold_m: d.dog_threshold_m,
+            end_face: d.end_face,
         }
     }
 }

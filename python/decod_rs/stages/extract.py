@@ -35,6 +35,9 @@ class SubmapLandmarks:
     landmarks: list[Landmark] = field(default_factory=list)
     rejections: dict[str, int] = field(default_factory=dict)
     rejection_messages: list[str] = field(default_factory=list)
+    #: Submaps cut before an end face in view (a tunnel's end, a pipe's cap) whose part before
+    #: it was a corridor (``decod_rs._core.SubmapDiagnostics.end_face``).
+    end_face_submaps: int = 0
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,7 @@ def extract(
             out.anchor_stamps.append(submap.anchor_stamp)
             out.anchor_poses.append(submap.world_from_anchor)
             out.landmarks.extend(submap.result.landmarks)
+            out.end_face_submaps += int(submap.result.diagnostics.end_face)
             for rejection in submap.result.rejections:
                 out.rejections[rejection.kind] = out.rejections.get(rejection.kind, 0) + 1
                 out.rejection_messages.append(str(rejection))

@@ -233,6 +233,7 @@ def run_report(
             "skipped_outside_odometry": len(processor.skipped_outside_odometry),
             "skipped_in_odometry_gaps": len(processor.health()[2]),
             "submaps": summary.submaps,
+            "submaps_cut_at_end_face": ex.end_face_submaps,
             "landmarks": summary.landmarks,
             "tracks": int(np.unique(matched.tracks).size),
             "joints": len(joints),
