@@ -15,9 +15,11 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from decod_rs import _core
 from decod_rs.bench.matrix import _world_axial
+from decod_rs.commands.run import print_summary
 from decod_rs.evaluate import FINE_TOLERANCE_M, evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -48,7 +50,9 @@ def _views_by_cut(sim: Path, config: dict) -> tuple[list[float], list[float]]:
     return cut, other
 
 
-def test_a_forward_sensor_keeps_the_boundaries_before_the_tunnels_end(tmp_path: Path) -> None:
+def test_a_forward_sensor_keeps_the_boundaries_before_the_tunnels_end(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     sim, out = tmp_path / "sim", tmp_path / "run"
     simulate(
         "shield",
@@ -61,9 +65,12 @@ def test_a_forward_sensor_keeps_the_boundaries_before_the_tunnels_end(tmp_path: 
         scene_overrides={"radius_m": 3.5},
         progress=False,
     )
-    run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False)
+    summary = run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False)
     report = json.loads((out / "report.json").read_text())
-    assert report["counts"]["submaps_cut_at_end_face"] >= 1, report["counts"]
+    cut_submaps = report["counts"]["submaps_cut_at_end_face"]
+    assert cut_submaps >= 1, report["counts"]
+    print_summary(summary)  # what `decod run` prints
+    assert f"({cut_submaps} cut before an end face in view)" in capsys.readouterr().out
 
     cut, other = _views_by_cut(sim, report["config"])
     assert cut, "a submap cut before the face gave no landmark"

@@ -97,7 +97,9 @@ def print_summary(summary: RunSummary) -> None:
     t = summary.timings_s
     stages = ", ".join(f"{k} {v:.2f} s" for k, v in t.items())
     print(f"scans          {summary.scans} ({summary.log_duration_s:.1f} s of log)")
-    print(f"submaps        {summary.submaps}, landmarks {summary.landmarks}")
+    cut = summary.end_face_submaps
+    ends = f" ({cut} cut before an end face in view)" if cut else ""
+    print(f"submaps        {summary.submaps}, landmarks {summary.landmarks}{ends}")
     rej = ", ".join(f"{k} {v}" for k, v in sorted(summary.rejections.items())) or "none"
     print(f"rejected       {rej}")
     print(

@@ -52,6 +52,8 @@ class RunSummary:
     log_duration_s: float
     timings_s: dict[str, float] = field(default_factory=dict)
     rejections: dict[str, int] = field(default_factory=dict)
+    #: Submaps cut before an end face in view (``report.json`` ``counts``).
+    end_face_submaps: int = 0
 
     @property
     def realtime_factor(self) -> float:
@@ -189,6 +191,7 @@ def run_summary(
         log_duration_s=float(scans[0][-1] - scans[0][0]),
         timings_s=timings,
         rejections=ex.rejections,
+        end_face_submaps=ex.end_face_submaps,
     )
 
 
@@ -233,7 +236,7 @@ def run_report(
             "skipped_outside_odometry": len(processor.skipped_outside_odometry),
             "skipped_in_odometry_gaps": len(processor.health()[2]),
             "submaps": summary.submaps,
-            "submaps_cut_at_end_face": ex.end_face_submaps,
+            "submaps_cut_at_end_face": summary.end_face_submaps,
             "landmarks": summary.landmarks,
             "tracks": int(np.unique(matched.tracks).size),
             "joints": len(joints),
