@@ -170,7 +170,9 @@ pub struct ExtractionOutcome {
 
 /// Runs the extraction pipeline on one submap (paper §III-A):
 /// 1. point count check;
-/// 2. axis by PCA, oriented with forward; elongation check (`axis.min_elongation`);
+/// 2. axis by PCA, oriented with forward; elongation check (`axis.min_elongation`); a cloud
+///    that fails steps 2-5 is tried once more on its part before an end face in view
+///    ([`crate::corridor_end`], not in the paper);
 /// 3. basis `e1, e2` from gravity (Eq. 1);
 /// 4. projection on the transverse plane and contour fit, with `axis.refine_iterations`
 ///    Gauss–Newton refinements of the axis from the contour residuals (`axis::refine_axis`);
@@ -260,12 +262,12 @@ fn corridor(
 }
 
 /// Steps 3-5 on the points before an end face in view ([`crate::corridor_end`]; not in
-/// the paper), for a submap whose whole cloud failed them (a room closed at both ends stays
-/// rejected, with the whole cloud's reason): the face is looked for
-/// along the sensor's heading and along each principal direction, the face's normal is the
-/// axis, and of the guesses whose trimmed cloud passes the corridor test the one with the
-/// most points on its contour is taken (its diagnostics replace the failed ones). `None`:
-/// no face, or no trimmed cloud that is a corridor.
+/// the paper), for a submap whose whole cloud failed them: the face is looked for along the
+/// sensor's heading and along each principal direction, the face's normal is the axis, and
+/// of the guesses whose trimmed cloud passes the corridor test the one with the most points
+/// on its contour is taken (its diagnostics replace the failed ones). `None`: no face, a
+/// room closed at both ends, or no trimmed cloud that is a corridor (the submap then keeps
+/// the whole cloud's rejection).
 fn before_end_face(
     submap: &Submap,
     cfg: &DecodConfig,
@@ -284,6 +286,7 @@ fn before_end_face(
         let Some((kept, a)) = trim_end_face(&submap.points_in_anchor, guess, slab) else {
             continue;
         };
+        // The trimmed cloud's centroid (its PCA axis is not used: the face gave the axis).
         let Ok(trimmed) = estimate_axis(&kept, submap.forward_in_anchor) else {
             continue;
         };
