@@ -1,5 +1,6 @@
 //! Extraction on a 100k-point pipe submap (target <= 20 ms, DESIGN.md "Targets"), per stage
-//! and end to end, with element throughput; and the accumulation of a 64-beam window into a
+//! and end to end, with element throughput, and on one that looks at the pipe's end face (the
+//! retry of `decod::corridor_end`); and the accumulation of a 64-beam window into a
 //! submap (scans moved into the anchor frame, voxel-filtered). `cargo bench --bench extraction`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -110,6 +111,32 @@ fn spinning_window(scans: usize) -> Vec<Scan> {
         .collect()
 }
 
+/// What a forward-looking sensor sees of a pipe ending ahead (`decod::corridor_end`): 0.6 m
+/// of wall (radius 0.3 m, a groove at 0.37 m; half the points) and an end face at 0.7 m (the
+/// other half): the whole cloud fails the corridor test, the part before the face passes.
+fn pipe_end_submap(n: usize) -> Submap {
+    let half = n / 2;
+    let wall = (0..half).map(|i| {
+        let x = 0.1 + 0.6 * (i as f64 + 0.5) / half as f64;
+        let t = (i as f64 * 0.618_033_988_7).fract() * std::f64::consts::TAU;
+        let noise = 3e-4 * ((i * 7919 % 17) as f64 / 8.0 - 1.0);
+        let r = 0.3 + noise + if (x - 0.37).abs() < 0.006 { 0.003 } else { 0.0 };
+        [x as f32, (r * t.sin()) as f32, (-r * t.cos()) as f32]
+    });
+    let face = (0..n - half).map(|i| {
+        let r = 0.3 * ((i as f64 + 0.5) / (n - half) as f64).sqrt();
+        let t = i as f64 * 2.399_963_229_7;
+        [0.7f32, (r * t.sin()) as f32, (-r * t.cos()) as f32]
+    });
+    Submap::from_points(
+        0.0,
+        wall.chain(face).collect(),
+        [0.0, 0.0, -1.0],
+        [1.0, 0.0, 0.0],
+    )
+    .unwrap_or_else(|e| unreachable!("{e}"))
+}
+
 fn bench(c: &mut Criterion) {
     // The automatic configuration's window for the simulated horseshoe with 64 beams
     // (4.7 cm voxels, 12.16 m range, 24 scans): 0.79 M points into ~0.1 M voxels.
@@ -135,6 +162,19 @@ fn bench(c: &mut Criterion) {
             b.iter(|| estimate_axis(&submap.points_in_anchor, [1.0, 0.0, 0.0]))
         });
     }
+    // The retry before an end face: the whole-cloud steps, then the face search on the
+    // guesses and the steps again on the part before it.
+    let end = pipe_end_submap(100_000);
+    let found = extract_landmarks(&end, &cfg);
+    assert!(
+        found.diagnostics.end_face && found.landmarks.len() == 1,
+        "the benchmark must take the end-face path: {:?}",
+        found.rejections
+    );
+    group.throughput(Throughput::Elements(100_000));
+    group.bench_function("extract_landmarks_end_face/100000", |b| {
+        b.iter(|| extract_landmarks(std::hint::black_box(&end), &cfg))
+    });
     let submap = horseshoe_submap(100_000);
     let tunnel = DecodConfig::tunnel();
     group.throughput(Throughput::Elements(100_000));
