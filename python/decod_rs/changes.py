@@ -119,11 +119,12 @@ def residual_difference(
     rows, cols = c.shape
     shift_z = round(dz_m / query.cell_z_m)
     shift_p = round(dp * cols)
+    # Query row r compares with candidate row r + shift_z, columns rolled by shift_p.
     aligned = np.full((rows, cols), np.nan)
-    for r in range(rows):
-        rc = r + shift_z
-        if 0 <= rc < rows:
-            aligned[r] = np.roll(np.where(m[rc], c[rc], np.nan), -shift_p)
+    lo, hi = max(0, -shift_z), min(rows, rows - shift_z)
+    if lo < hi:
+        rolled = np.roll(np.where(m, c, np.nan), -shift_p, axis=1)
+        aligned[lo:hi] = rolled[lo + shift_z : hi + shift_z]
     diff = np.where(query.mask, query.descriptor, np.nan) - aligned
     # Cells far off the wall in either view (an opening, a pipe connection, a shadow edge)
     # differ with the viewpoint by centimetres: not a change of the wall.
@@ -142,11 +143,20 @@ def residual_difference(
         [np.where(seen, z * query.normal_e1, 0.0), np.where(seen, z * query.normal_e2, 0.0)]
     )
     count = np.maximum(seen.sum(axis=0), 1)
+    regressors = tilt.reshape(2, -1)
+    # Two unknowns: their normal equations, the same every round (640 pairs of a 64-beam
+    # re-inspection: 0.75 -> 0.52 s with the rows shifted by slices, changes.csv identical);
+    # a rank-deficient pair (a tilt regressor unseen) keeps the least squares' minimum norm.
+    normal = regressors @ regressors.T
+    solvable = abs(float(np.linalg.det(normal))) > 1e-12 * float(np.trace(normal)) ** 2
     beta = np.zeros(2)
     for _ in range(4):
         alpha = np.where(seen, x - np.tensordot(beta, tilt, 1), 0.0).sum(axis=0) / count
         y = np.where(seen, x - alpha[None, :], 0.0)
-        beta = np.linalg.lstsq(tilt.reshape(2, -1).T, y.ravel(), rcond=None)[0]
+        if solvable:
+            beta = np.linalg.solve(normal, regressors @ y.ravel())
+        else:
+            beta = np.linalg.lstsq(regressors.T, y.ravel(), rcond=None)[0]
     return np.where(seen, x - alpha[None, :] - np.tensordot(beta, tilt, 1), np.nan)
 
 
