@@ -28,6 +28,16 @@ pub struct CorridorAxis {
     pub directions: [[f64; 3]; 3],
 }
 
+/// The mean of `points` in f64, metres (NaN for none).
+pub fn centroid(points: &[[f32; 3]]) -> [f64; 3] {
+    let mut sum = Vector3::zeros();
+    for p in points {
+        sum += Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    }
+    let mean = sum / points.len() as f64;
+    [mean.x, mean.y, mean.z]
+}
+
 /// PCA of `points` (paper §III-A); the axis is oriented with `forward` (paper §IV-A.2).
 ///
 /// Accumulates the mean and covariance in f64 in one pass each (no copy of the cloud).
@@ -40,11 +50,7 @@ pub fn estimate_axis(points: &[[f32; 3]], forward: [f64; 3]) -> Result<CorridorA
         ));
     }
     let n = points.len() as f64;
-    let mut mean = Vector3::zeros();
-    for p in points {
-        mean += Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-    }
-    mean /= n;
+    let mean = Vector3::from(centroid(points));
     let mut cov = Matrix3::zeros();
     for p in points {
         let d = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - mean;
@@ -64,7 +70,6 @@ pub fn estimate_axis(points: &[[f32; 3]], forward: [f64; 3]) -> Result<CorridorA
         };
         [d.x, d.y, d.z]
     });
-    let a = Vector3::from(directions[0]);
     let elongation = if sv[1] > 0.0 {
         sv[0] / sv[1]
     } else {
@@ -72,7 +77,7 @@ pub fn estimate_axis(points: &[[f32; 3]], forward: [f64; 3]) -> Result<CorridorA
     };
     Ok(CorridorAxis {
         centroid: [mean.x, mean.y, mean.z],
-        axis: [a.x, a.y, a.z],
+        axis: directions[0],
         singular_values: sv,
         elongation,
         directions,

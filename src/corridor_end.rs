@@ -18,7 +18,7 @@
 //! `crate::extract` tries this only on a submap the usual steps rejected, so no submap
 //! that was accepted before changes.
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use crate::axis::estimate_axis;
 
 /// A slab of the axial histogram is an end face when it holds at least this many times the
 /// median slab's points: a wall slab of the simulated shield seen by the forward sensor holds
@@ -121,37 +121,21 @@ fn face_slab(points: &[[f32; 3]], axis: [f64; 3], slab_m: f64) -> Option<f64> {
 }
 
 /// The unit normal of the points in the slab `[face - slab, face + 2 slab)` along `axis`
-/// (the face and its neighbours, for a guess a few degrees off), oriented like `axis`;
-/// `None` when they are not planar ([`MAX_FACE_THICKNESS`]).
+/// (the face and its neighbours, for a guess a few degrees off): their least principal
+/// direction ([`estimate_axis`]), oriented like `axis`; `None` when they are not planar
+/// ([`MAX_FACE_THICKNESS`]).
 fn face_normal(points: &[[f32; 3]], axis: [f64; 3], face: f64, slab_m: f64) -> Option<[f64; 3]> {
-    let slab: Vec<Vector3<f64>> = points
+    let slab: Vec<[f32; 3]> = points
         .iter()
         .filter(|p| in_slab(dot3(p, &axis), face, slab_m))
-        .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .copied()
         .collect();
-    if slab.len() < 3 {
+    let pca = estimate_axis(&slab, axis).ok()?;
+    let [_, middle, thin] = pca.singular_values;
+    if thin.is_nan() || thin > MAX_FACE_THICKNESS * middle {
         return None;
     }
-    let mean = slab.iter().sum::<Vector3<f64>>() / slab.len() as f64;
-    let cov = slab
-        .iter()
-        .map(|p| (p - mean) * (p - mean).transpose())
-        .sum::<Matrix3<f64>>()
-        / slab.len() as f64;
-    let eig = SymmetricEigen::new(cov);
-    let mut order = [0usize, 1, 2];
-    order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
-    let sd = order.map(|i| eig.eigenvalues[i].max(0.0).sqrt());
-    if sd[0].is_nan() || sd[0] > MAX_FACE_THICKNESS * sd[1] {
-        return None;
-    }
-    let n: Vector3<f64> = eig.eigenvectors.column(order[0]).into_owned();
-    let n = if n.dot(&Vector3::from(axis)) < 0.0 {
-        -n
-    } else {
-        n
-    };
-    Some([n.x, n.y, n.z])
+    Some(pca.directions[2])
 }
 
 /// An even stride of `points`, at most [`DETECTION_POINTS`] of them.

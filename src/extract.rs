@@ -6,7 +6,7 @@ use std::fmt;
 
 use rayon::prelude::*;
 
-use crate::axis::{CorridorAxis, estimate_axis, refine_axis, transverse_basis};
+use crate::axis::{CorridorAxis, centroid, estimate_axis, refine_axis, transverse_basis};
 use crate::boundary::{BoundaryPeak, ChartPoint, detect_boundaries};
 use crate::config::DecodConfig;
 use crate::contour::{ContourFit, fit_contour};
@@ -286,13 +286,11 @@ fn before_end_face(
         let Some((kept, a)) = trim_end_face(&submap.points_in_anchor, guess, slab) else {
             continue;
         };
-        // The trimmed cloud's centroid (its PCA axis is not used: the face gave the axis).
-        let Ok(trimmed) = estimate_axis(&kept, submap.forward_in_anchor) else {
-            continue;
-        };
+        // The face gave the axis; the trimmed cloud (3 points or more) its centroid.
+        let c = centroid(&kept);
         let mut trial = diag.clone();
-        trial.centroid = trimmed.centroid;
-        let Ok(frame) = fit_frame(&kept, submap, cfg, trimmed.centroid, a) else {
+        trial.centroid = c;
+        let Ok(frame) = fit_frame(&kept, submap, cfg, c, a) else {
             continue;
         };
         trial.axis = frame.a;

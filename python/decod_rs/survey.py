@@ -407,25 +407,29 @@ def _graph(
     return np.stack([result.atPose3(k).matrix() for k in range(n)])
 
 
-def _landmark_anchor_poses(survey: Survey) -> FloatArray:
-    """(L, 4, 4) the corrected pose of each survey landmark's anchor."""
+def survey_placement(survey: Survey) -> tuple[FloatArray, FloatArray]:
+    """(L, 3) each the survey's boundary origins and axes (oriented with their sensor's
+    forward) in its corrected frame, from one lookup of their anchors' poses."""
     poses = [survey.anchor_pose(lm.submap_stamp) for lm in survey.landmarks]
-    return np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    pose = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    origins = np.array([lm.origin for lm in survey.landmarks], dtype=np.float64).reshape(-1, 3)
+    axes = np.array([lm.axis for lm in survey.landmarks], dtype=np.float64).reshape(-1, 3)
+    rotation = pose[:, :3, :3]
+    return (
+        np.einsum("nij,nj->ni", rotation, origins) + pose[:, :3, 3],
+        np.einsum("nij,nj->ni", rotation, axes),
+    )
 
 
 def survey_origins(survey: Survey) -> FloatArray:
     """(L, 3) the survey's boundary origins in its corrected frame."""
-    poses = _landmark_anchor_poses(survey)
-    origins = np.array([lm.origin for lm in survey.landmarks], dtype=np.float64).reshape(-1, 3)
-    return np.einsum("nij,nj->ni", poses[:, :3, :3], origins) + poses[:, :3, 3]
+    return survey_placement(survey)[0]
 
 
 def survey_axes(survey: Survey) -> FloatArray:
     """(L, 3) the survey's boundary axes (oriented with their sensor's forward) in its
     corrected frame."""
-    poses = _landmark_anchor_poses(survey)
-    axes = np.array([lm.axis for lm in survey.landmarks], dtype=np.float64).reshape(-1, 3)
-    return np.einsum("nij,nj->ni", poses[:, :3, :3], axes)
+    return survey_placement(survey)[1]
 
 
 def survey_database(survey: Survey, cfg: Config) -> LandmarkDatabase:
@@ -438,9 +442,10 @@ def survey_database(survey: Survey, cfg: Config) -> LandmarkDatabase:
     with the forward sensor and a turn kept 8 -> 24 cross-session pairs, the horseshoe with
     64 beams and a turn 635 -> 640, every one within 0.15 m of the truth."""
     db = LandmarkDatabase(cfg)
-    stored = db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], survey_origins(survey))
+    origins, axes = survey_placement(survey)
+    stored = db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], origins)
     if stored:
-        db.set_directions(stored, survey_axes(survey))
+        db.set_directions(stored, axes)
     return db
 
 
