@@ -14,6 +14,7 @@ use crate::corridor_end::trim_end_face;
 use crate::descriptor::{bottom_mask, build_descriptor, column_samples};
 use crate::landmark::Landmark;
 use crate::submap::Submap;
+use crate::wall_normals::wall_normal_axis;
 
 /// Why a submap (or a boundary in it) yielded no landmark.
 #[derive(Clone, Debug, PartialEq)]
@@ -254,7 +255,7 @@ fn corridor(
     }
     // 3-4.
     let points = &submap.points_in_anchor;
-    let frame = fit_frame(points, submap, cfg, axis.centroid, axis.axis)?;
+    let frame = best_frame(points, submap, cfg, axis)?;
     diag.axis = frame.a;
     // 5.
     let chart = unrolled_chart(points, &frame, cfg, diag)?;
@@ -290,7 +291,7 @@ fn before_end_face(
         let c = centroid(&kept);
         let mut trial = diag.clone();
         trial.centroid = c;
-        let Ok(frame) = fit_frame(&kept, submap, cfg, c, a) else {
+        let Ok(frame) = fit_frame(&kept, submap, cfg, c, a, cfg.axis.refine_iterations) else {
             continue;
         };
         trial.axis = frame.a;
@@ -310,6 +311,118 @@ fn before_end_face(
     Some((frame, chart))
 }
 
+/// A last refinement step longer than this (deg) means the refinement did not settle the
+/// axis (`best_frame`). Where the wall is sampled evenly it settles within hundredths of a
+/// degree in two steps; from the 11 deg lean of a pitched sensor's PCA it moved 2 deg per
+/// step, the wrong way.
+const UNSETTLED_STEP_DEG: f64 = 0.5;
+
+/// The wall normals' axis is tried where it is further than this (deg) from the refined PCA
+/// axis (`best_frame`).
+const AXIS_DISAGREEMENT_DEG: f64 = 1.0;
+
+/// Another axis replaces the refined PCA axis only where its contour's median absolute
+/// offset is at most this share of the PCA axis's (`best_frame`): a pitched spinning sensor's
+/// true axis fits 2.8-4.5 times tighter (median 0.25, 90th percentile 0.36 over a simulated
+/// horseshoe run), while the forward rosette's submaps, whose refinement also moves 0.8-2 deg
+/// a step, gain 5-20 % from axes 0.2-0.5 deg away: that is within what the contour's own
+/// fit decides, and taking it moved landmarks enough to pass two loops 0.32-0.38 m off in
+/// the matrix's 10 m horseshoe (m114).
+const DECISIVE_TIGHTENING: f64 = 0.5;
+
+/// Golden-section steps of the search between two disagreeing axes: the bracket, 1.5 times
+/// their angle, shrinks to 0.3 % of it (0.06 deg for axes 20 deg apart).
+const AXIS_SEARCH_STEPS: usize = 12;
+
+/// Steps 3-4 from the PCA axis; where its refinement does not settle
+/// ([`UNSETTLED_STEP_DEG`]) and the wall's normals give an axis further from it than
+/// [`AXIS_DISAGREEMENT_DEG`] ([`crate::wall_normals`]), also from the normals' axis and from
+/// the axis on the arc through the two (and a quarter of it beyond each) whose contour fits
+/// tightest (smallest median absolute offset, golden-section search); the tightest of those
+/// replaces the PCA frame if it fits decisively tighter ([`DECISIVE_TIGHTENING`]). Not in
+/// the paper: a spinning sensor pitched 20 deg on its mount samples the floor ahead and the
+/// crown behind, PCA leans 11 deg one way, the normals (their visible facets lean towards
+/// the sensor) 5 deg the other, and the contour's median offset is smallest at the true axis
+/// (0.035-0.044 m there against 0.06-0.10 m 5 deg off, in a simulated 5 m horseshoe). Where
+/// the refinement settles (the matrix's spinning sensors, all level) nothing else is tried.
+fn best_frame(
+    points: &[[f32; 3]],
+    submap: &Submap,
+    cfg: &DecodConfig,
+    axis: &CorridorAxis,
+) -> Result<CorridorFrame, RejectionReason> {
+    let refine = cfg.axis.refine_iterations;
+    let c = axis.centroid;
+    let pca = fit_frame(points, submap, cfg, c, axis.axis, refine)?;
+    if pca.last_step_deg <= UNSETTLED_STEP_DEG {
+        return Ok(pca);
+    }
+    let Some(normals) = wall_normal_axis(points, cfg.submap.voxel_m, submap.forward_in_anchor)
+        .filter(|n| angle_deg(*n, pca.a) > AXIS_DISAGREEMENT_DEG)
+    else {
+        return Ok(pca);
+    };
+    // The axis on the arc from the PCA axis to the normals' (a quarter beyond each end) whose
+    // contour fits tightest, refined; and the normals' axis refined.
+    let on_arc = |t: f64| {
+        let v = [0, 1, 2].map(|k| (1.0 - t) * axis.axis[k] + t * normals[k]);
+        let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        v.map(|x| x / norm)
+    };
+    let spread = |t: f64| {
+        fit_frame(points, submap, cfg, c, on_arc(t), 0)
+            .map_or(f64::INFINITY, |f| f.fit.median_abs_offset_m)
+    };
+    let t = golden_minimum(spread, -0.25, 1.25, AXIS_SEARCH_STEPS);
+    let tightest = [normals, on_arc(t)]
+        .into_iter()
+        .filter_map(|start| fit_frame(points, submap, cfg, c, start, refine).ok())
+        .min_by(|a, b| {
+            a.fit
+                .median_abs_offset_m
+                .total_cmp(&b.fit.median_abs_offset_m)
+        });
+    Ok(match tightest {
+        Some(f)
+            if f.fit.median_abs_offset_m <= DECISIVE_TIGHTENING * pca.fit.median_abs_offset_m =>
+        {
+            f
+        }
+        _ => pca,
+    })
+}
+
+/// The angle between two unit directions, deg (0-180).
+fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
+}
+
+/// Golden-section search for the minimum of `f` on `[lo, hi]` in `steps` steps (the
+/// bracket's middle at the end).
+fn golden_minimum(f: impl Fn(f64) -> f64, lo: f64, hi: f64, steps: usize) -> f64 {
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut a, mut b) = (lo, hi);
+    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..steps {
+        if f1 <= f2 {
+            b = x2;
+            (x2, f2) = (x1, f1);
+            x1 = b - g * (b - a);
+            f1 = f(x1);
+        } else {
+            a = x1;
+            (x1, f1) = (x2, f2);
+            x2 = a + g * (b - a);
+            f2 = f(x2);
+        }
+    }
+    0.5 * (a + b)
+}
+
 /// The submap's corridor frame: centroid `c`, axis `a`, basis `e1, e2` (Eq. 1) and the
 /// contour fitted in it.
 struct CorridorFrame {
@@ -318,6 +431,8 @@ struct CorridorFrame {
     e1: [f64; 3],
     e2: [f64; 3],
     fit: ContourFit,
+    /// How far the last refinement moved the axis, deg (0 without refinement).
+    last_step_deg: f64,
 }
 
 /// Steps 3-4: basis (Eq. 1), projection on the transverse plane and contour fit on an evenly
@@ -330,6 +445,7 @@ fn fit_frame(
     cfg: &DecodConfig,
     c: [f64; 3],
     axis: [f64; 3],
+    refinements: usize,
 ) -> Result<CorridorFrame, RejectionReason> {
     let mut a = axis;
     let stride = points
@@ -337,7 +453,8 @@ fn fit_frame(
         .div_ceil(cfg.contour.max_fit_points.max(3))
         .max(1);
     let subset: Vec<[f32; 3]> = points.iter().step_by(stride).copied().collect();
-    let mut refine_left = cfg.axis.refine_iterations;
+    let mut refine_left = refinements;
+    let mut last_step_deg = 0.0;
     // `auto` chooses the model on the first fit; refinements keep that model.
     let mut contour_cfg = cfg.contour.clone();
     loop {
@@ -348,7 +465,14 @@ fn fit_frame(
             .map_err(|e| RejectionReason::Degenerate(e.to_string()))?;
         contour_cfg.model = fit.contour.model.name().to_string();
         if refine_left == 0 {
-            return Ok(CorridorFrame { c, a, e1, e2, fit });
+            return Ok(CorridorFrame {
+                c,
+                a,
+                e1,
+                e2,
+                fit,
+                last_step_deg,
+            });
         }
         refine_left -= 1;
         let contour = &fit.contour;
@@ -367,9 +491,20 @@ fn fit_frame(
                 } else {
                     1.0
                 };
-                a = refined.map(|v| sign * v);
+                let next = refined.map(|v| sign * v);
+                last_step_deg = angle_deg(a, next);
+                a = next;
             }
-            None => return Ok(CorridorFrame { c, a, e1, e2, fit }),
+            None => {
+                return Ok(CorridorFrame {
+                    c,
+                    a,
+                    e1,
+                    e2,
+                    fit,
+                    last_step_deg,
+                });
+            }
         }
     }
 }

@@ -29,6 +29,7 @@ mod radix;
 pub mod scan;
 pub mod submap;
 pub mod survey;
+pub mod wall_normals;
 
 #[cfg(feature = "python")]
 mod python;

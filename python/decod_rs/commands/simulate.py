@@ -53,6 +53,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--identical-joints", action="store_true", help="an aliased corridor")
     p.add_argument("--speed", type=float, default=None, help="m/s")
     p.add_argument(
+        "--mount",
+        type=_mount,
+        default=(0.0, 0.0),
+        metavar="ROLL,PITCH",
+        help="the sensor's static mount in degrees (pitch positive nose down), e.g. 90,0 or "
+        "0,20; default 0,0",
+    )
+    p.add_argument(
         "--odometry",
         choices=["drift", "kiss-icp"],
         default="drift",
@@ -65,6 +73,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true", help="replace an existing DIR/log")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def _mount(text: str) -> tuple[float, float]:
+    roll, _, pitch = text.partition(",")
+    try:
+        return float(roll), float(pitch)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--mount takes ROLL,PITCH in degrees (e.g. 0,20), got {text!r}"
+        ) from None
 
 
 def _scene_param(text: str) -> tuple[str, float]:
@@ -101,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         sensor_overrides=overrides or None,
         scene_overrides=dict(args.scene_params) or None,
         world_seed=args.world_seed,
+        mount_deg=args.mount,
         odometry=args.odometry,
         livox=args.livox,
         ros1=args.ros1,

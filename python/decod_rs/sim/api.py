@@ -72,6 +72,7 @@ class Simulation:
         imu: ImuSpec | None = None,
         scene_overrides: dict[str, Any] | None = None,
         world_seed: int | None = None,
+        mount_deg: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
         # The world (scene geometry) may come from another seed than the run (noise, drift,
@@ -97,6 +98,8 @@ class Simulation:
             pitch_rad=defaults.pitch_rad,
             yaw_rad=defaults.yaw_rad,
             wobble_wavelength_m=defaults.wobble_wavelength_m,
+            mount_roll_rad=float(np.radians(_mount(mount_deg)[0])),
+            mount_pitch_rad=float(np.radians(_mount(mount_deg)[1])),
         )
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
@@ -511,6 +514,17 @@ def _sim_result(
     )
 
 
+def _mount(mount_deg: tuple[float, float]) -> tuple[float, float]:
+    """``(roll, pitch)`` degrees checked: finite, roll within +-180, pitch within +-60 (a
+    sensor pitched further does not look along the corridor)."""
+    roll, pitch = (float(v) for v in mount_deg)
+    if not (np.isfinite(roll) and abs(roll) <= 180.0):
+        raise ValueError(f"mount roll must be within +-180 deg, got {roll}")
+    if not (np.isfinite(pitch) and abs(pitch) <= 60.0):
+        raise ValueError(f"mount pitch must be within +-60 deg, got {pitch}")
+    return roll, pitch
+
+
 def simulate(
     scene: str,
     out_dir: Path | str,
@@ -526,6 +540,7 @@ def simulate(
     sensor_overrides: dict[str, Any] | None = None,
     scene_overrides: dict[str, Any] | None = None,
     world_seed: int | None = None,
+    mount_deg: tuple[float, float] = (0.0, 0.0),
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -545,13 +560,16 @@ def simulate(
     radius, :func:`decod_rs.sim.scenes.defaults_for`). ``odometry="kiss-icp"`` replaces the
     drift model by a real LiDAR odometry (KISS-ICP) run on the simulated scans (``drift`` is
     then ignored). ``world_seed`` builds the scene from another seed than ``seed`` (default:
-    the same): two inspections of one world with their own noise and drift.
+    the same): two inspections of one world with their own noise and drift. ``mount_deg``:
+    the sensor's static mount, ``(roll, pitch)`` in degrees (pitch positive nose down), which
+    the scans, odometry, IMU and ground truth all carry (:class:`TrajectorySpec`).
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
     """
     if odometry not in ("drift", "kiss-icp"):
         raise ValueError(f"odometry must be 'drift' or 'kiss-icp', got {odometry!r}")
+    _mount(mount_deg)  # refused before anything is written
     t_start = time.perf_counter()
     out = Path(out_dir)
     log_dir = out / LOG_DIRNAME
@@ -571,6 +589,7 @@ def simulate(
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
         world_seed=world_seed,
+        mount_deg=mount_deg,
     )
     kiss = KissOdometry(scene, sim.gt_poses[0]) if odometry == "kiss-icp" else None
     t_setup = time.perf_counter() - t_start

@@ -120,6 +120,11 @@ class TrajectorySpec:
     pitch_rad: float = 0.008
     yaw_rad: float = 0.01
     wobble_wavelength_m: float = 3.0
+    #: The sensor's static mount on the vehicle: rolled about its forward axis, then pitched
+    #: (positive: nose down) about its lateral axis. The scans, the odometry, the IMU and the
+    #: ground truth are all of the mounted sensor, as a driver publishes them.
+    mount_roll_rad: float = 0.0
+    mount_pitch_rad: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -204,6 +209,8 @@ class Trajectory:
             rot_z(self.heading(t) + self._wobble("yaw", d))
             @ rot_y(self._wobble("pitch", d))
             @ rot_x(self._wobble("roll", d))
+            @ rot_y(np.full_like(t, s.mount_pitch_rad))
+            @ rot_x(np.full_like(t, s.mount_roll_rad))
         )
         out = np.zeros((t.size, 4, 4))
         out[:, :3, :3] = rot
