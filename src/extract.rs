@@ -177,7 +177,9 @@ pub struct ExtractionOutcome {
 /// 3. basis `e1, e2` from gravity (Eq. 1);
 /// 4. projection on the transverse plane and contour fit, with `axis.refine_iterations`
 ///    Gauss–Newton refinements of the axis from the contour residuals (`axis::refine_axis`);
-///    contour validation on every point (§IV-A.2);
+///    where they do not settle, the wall's normals and the contour decide the axis
+///    ([`crate::wall_normals`], not in the paper); contour validation on every point
+///    (§IV-A.2);
 /// 5. unrolling of every point to `(z, p, s)` once;
 /// 6. boundaries by DoG + NMS on the axial profile;
 /// 7. one descriptor per boundary, origin `o` = contour centre at the peak.

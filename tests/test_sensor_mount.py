@@ -19,7 +19,7 @@ import pytest
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.run_files import read_landmarks_csv
-from decod_rs.sim import simulate
+from decod_rs.sim import generate, simulate
 from decod_rs.tum import read_tum
 
 
@@ -66,3 +66,20 @@ def test_the_mount_is_checked_before_anything_is_written(tmp_path: Path) -> None
     with pytest.raises(ValueError, match="roll"):
         simulate("pe", tmp_path / "b", mount_deg=(float("nan"), 0.0), progress=False)
     assert not any(tmp_path.iterdir())
+
+
+def test_the_mount_turns_scans_imu_and_ground_truth_alike() -> None:
+    # Pitched 20 deg nose down: the sensor's x axis points 20 deg below the corridor in the
+    # ground truth (the trajectory's own pitch wobble is 8 mrad at most), gravity in the
+    # IMU (at rest before the run starts) is as far from the sensor's -z, and the sensor's
+    # position is the level run's.
+    level = generate("horseshoe", seed=3, sensor="spin16", scan_indices=[0])
+    pitched = generate(
+        "horseshoe", seed=3, sensor="spin16", scan_indices=[0], mount_deg=(0.0, 20.0)
+    )
+    x_world = pitched.gt_poses[0][:3, 0]
+    assert np.degrees(np.arcsin(-x_world[2])) == pytest.approx(20.0, abs=0.6)
+    np.testing.assert_allclose(pitched.gt_poses[0][:3, 3], level.gt_poses[0][:3, 3])
+    down = -pitched.imu_accel[0] / np.linalg.norm(pitched.imu_accel[0])
+    assert np.degrees(np.arccos(-down[2])) == pytest.approx(20.0, abs=0.6)
+    assert pitched.metadata["trajectory"]["mount_pitch_rad"] == pytest.approx(np.radians(20.0))

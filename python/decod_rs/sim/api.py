@@ -276,6 +276,7 @@ def generate(
     scan_indices: list[int] | None = None,
     scene_overrides: dict[str, Any] | None = None,
     world_seed: int | None = None,
+    mount_deg: tuple[float, float] = (0.0, 0.0),
 ) -> SimData:
     """Simulate a run in memory (every scan, or only ``scan_indices``; the poses, IMU and
     drift always cover the whole run and ``stamps_ns`` the selected scans). Arguments as
@@ -293,6 +294,7 @@ def generate(
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
         world_seed=world_seed,
+        mount_deg=mount_deg,
     )
     idx = list(range(sim.n_scans)) if scan_indices is None else list(scan_indices)
     scans = [sim.scan(k) for k in idx]
