@@ -12,9 +12,10 @@ and 4 m (and the scenes' own 1.2, 1.5, 2.43 and 6 m), tunnel widths 3, 4, 9 and 
 the scenes' 5 and 6 m), speeds 0.2, 0.8 and 2 m/s (and the scenes' 0.4, 1.2 and 1.5 m/s), and
 an aliased hume pipe (identical joints). The quick tier (:data:`QUICK`) is 8 of these cells:
 one per scene with its main sensor, an uneven-drift hume, the aliased pipe and two held-out
-variants. The fresh tier (:data:`FRESH`) is six cells outside the full tier, all held out:
-other diameters (0.45, 0.8 m), joint spacing (2 m), widths (4, 7 m) and speeds (0.3, 0.6,
-1.0, 2.0 m/s), with sensor and return combinations of their own.
+variants. The fresh tier (:data:`FRESH`) is eight cells outside the full tier, all held
+out: other diameters (0.45, 0.8 m), joint spacing (2 m), widths (4, 7 m) and speeds (0.3,
+0.6, 1.0, 2.0 m/s), with sensor and return combinations of their own, and two sensors
+mounted pitched or rolled (every other cell's sensor is level).
 
 **Sensors that see the walls.** A boundary is matched from its unrolled ring, so the whole
 ring (above a tunnel's floor) must fall inside the field of view from some distance:
@@ -137,6 +138,8 @@ class Cell:
     identical_joints: bool = False
     variant: str = ""
     profiles: tuple[str, ...] = (SYMMETRIC, UNEVEN)
+    #: The sensor's static mount, (roll, pitch) deg (``decod simulate --mount``).
+    mount_deg: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -195,6 +198,7 @@ def _fresh(
     length_m: float,
     variant: str,
     speed_mps: float | None = None,
+    mount_deg: tuple[float, float] = (0.0, 0.0),
     **overrides: float,
 ) -> Cell:
     """A fresh-tier cell: scene, sensor and return mode read from ``name`` (the matrix's
@@ -211,13 +215,16 @@ def _fresh(
         scene_overrides=dict(overrides),
         held_out=True,
         variant=variant,
+        mount_deg=mount_deg,
     )
 
 
 #: The fresh tier: combinations, sizes and speeds the full tier does not have, seed 7, every
 #: cell held out. First run once the code it tests was settled (m95), as a user's first logs
 #: would be: nothing was chosen on them, and what they show is reported as it came out
-#: (README). Every sensor here sees its corridor's walls (:func:`sees_walls`).
+#: (README). Every sensor here sees its corridor's walls (:func:`sees_walls`). The last two
+#: (added with the axis decision of ``src/wall_normals.rs``, whose development used seed 61)
+#: mount the sensor pitched or rolled, which no other cell does.
 FRESH: tuple[Cell, ...] = (
     _fresh("pe-spin16-reverse-s7-d0.8", 30.0, "pe, diameter 0.8 m", radius_m=0.4),
     _fresh(
@@ -242,6 +249,18 @@ FRESH: tuple[Cell, ...] = (
         "hume, diameter 0.45 m, 0.3 m/s",
         speed_mps=0.3,
         radius_m=0.225,
+    ),
+    _fresh(
+        "horseshoe-spin16-turn-s7-p20",
+        40.0,
+        "horseshoe, 16 beams pitched 20 deg nose down",
+        mount_deg=(0.0, 20.0),
+    ),
+    _fresh(
+        "hume-spin16-reverse-s7-r30-p10",
+        30.0,
+        "hume, 16 beams rolled 30 deg and pitched 10 deg",
+        mount_deg=(30.0, 10.0),
     ),
 )
 
@@ -597,6 +616,7 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
         identical_joints=cell.identical_joints,
         speed_mps=cell.speed_mps,
         scene_overrides=cell.scene_overrides or None,
+        mount_deg=cell.mount_deg,
         progress=False,
         overwrite=True,
     )
