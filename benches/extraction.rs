@@ -1,6 +1,7 @@
 //! Extraction on a 100k-point pipe submap (target <= 20 ms, DESIGN.md "Targets"), per stage
 //! and end to end, with element throughput, and on one that looks at the pipe's end face (the
-//! retry of `decod::corridor_end`); and the accumulation of a 64-beam window into a
+//! retry of `decod::corridor_end`), and on a horseshoe sampled lopsidedly, as a pitched
+//! sensor samples it (the axis decision of `decod::wall_normals`); and the accumulation of a 64-beam window into a
 //! submap (scans moved into the anchor frame, voxel-filtered). `cargo bench --bench extraction`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -10,6 +11,7 @@ use decod::extract::extract_landmarks;
 use decod::geometry::Pose;
 use decod::scan::Scan;
 use decod::submap::Submap;
+use decod::wall_normals::wall_normal_axis;
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// A 3 m pipe of radius 0.3 m along a tilted axis, with two grooves, deterministic.
@@ -68,6 +70,21 @@ fn horseshoe_submap(n: usize) -> Submap {
                 (-(r + noise) * c) as f32,
             ]
         })
+        .collect();
+    Submap::from_points(0.0, points, [0.0, 0.0, -1.0], [1.0, 0.0, 0.0])
+        .unwrap_or_else(|e| unreachable!("{e}"))
+}
+
+/// [`horseshoe_submap`] sampled the way a spinning sensor pitched nose down samples it: the
+/// lower part of the section ahead of the sensor (x > 0), the upper part behind it; `n`
+/// points kept.
+fn lopsided_horseshoe_submap(n: usize) -> Submap {
+    let all = horseshoe_submap(2 * n);
+    let points: Vec<[f32; 3]> = all
+        .points_in_anchor
+        .into_iter()
+        .filter(|p| (p[2] < -0.5) == (p[0] > 0.0))
+        .take(n)
         .collect();
     Submap::from_points(0.0, points, [0.0, 0.0, -1.0], [1.0, 0.0, 0.0])
         .unwrap_or_else(|e| unreachable!("{e}"))
@@ -180,6 +197,31 @@ fn bench(c: &mut Criterion) {
     group.throughput(Throughput::Elements(100_000));
     group.bench_function("extract_landmarks_horseshoe/100000", |b| {
         b.iter(|| extract_landmarks(std::hint::black_box(&submap), &tunnel))
+    });
+    // The axis decision where the refinement does not settle (`decod::wall_normals`): PCA
+    // leans on the lopsided cloud, the normals and the contour find the axis.
+    let lopsided = lopsided_horseshoe_submap(100_000);
+    let pca = estimate_axis(&lopsided.points_in_anchor, [1.0, 0.0, 0.0])
+        .unwrap_or_else(|e| unreachable!("{e}"));
+    let found = extract_landmarks(&lopsided, &tunnel);
+    assert!(
+        pca.axis[0] < 3f64.to_radians().cos()
+            && found.diagnostics.axis[0] > 1f64.to_radians().cos(),
+        "the benchmark must take the axis decision: PCA {:?}, found {:?}",
+        pca.axis,
+        found.diagnostics.axis
+    );
+    group.bench_function("extract_landmarks_lopsided_horseshoe/100000", |b| {
+        b.iter(|| extract_landmarks(std::hint::black_box(&lopsided), &tunnel))
+    });
+    group.bench_function("wall_normal_axis/100000", |b| {
+        b.iter(|| {
+            wall_normal_axis(
+                std::hint::black_box(&lopsided.points_in_anchor),
+                tunnel.submap.voxel_m,
+                [1.0, 0.0, 0.0],
+            )
+        })
     });
     group.finish();
 }

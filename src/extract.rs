@@ -338,10 +338,10 @@ const AXIS_SEARCH_STEPS: usize = 12;
 
 /// Steps 3-4 from the PCA axis; where its refinement does not settle
 /// ([`UNSETTLED_STEP_DEG`]) and the wall's normals give an axis further from it than
-/// [`AXIS_DISAGREEMENT_DEG`] ([`crate::wall_normals`]), also from the normals' axis and from
-/// the axis on the arc through the two (and a quarter of it beyond each) whose contour fits
-/// tightest (smallest median absolute offset, golden-section search); the tightest of those
-/// replaces the PCA frame if it fits decisively tighter ([`DECISIVE_TIGHTENING`]). Not in
+/// [`AXIS_DISAGREEMENT_DEG`] ([`crate::wall_normals`]), also from the axis on the arc
+/// through the two (and a quarter of it beyond each) whose contour fits tightest (smallest
+/// median absolute offset, golden-section search), which replaces the PCA frame if it fits
+/// decisively tighter ([`DECISIVE_TIGHTENING`]). Not in
 /// the paper: a spinning sensor pitched 20 deg on its mount samples the floor ahead and the
 /// crown behind, PCA leans 11 deg one way, the normals (their visible facets lean towards
 /// the sensor) 5 deg the other, and the contour's median offset is smallest at the true axis
@@ -365,7 +365,7 @@ fn best_frame(
         return Ok(pca);
     };
     // The axis on the arc from the PCA axis to the normals' (a quarter beyond each end) whose
-    // contour fits tightest, refined; and the normals' axis refined.
+    // contour fits tightest, refined.
     let on_arc = |t: f64| {
         let v = [0, 1, 2].map(|k| (1.0 - t) * axis.axis[k] + t * normals[k]);
         let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -376,18 +376,8 @@ fn best_frame(
             .map_or(f64::INFINITY, |f| f.fit.median_abs_offset_m)
     };
     let t = golden_minimum(spread, -0.25, 1.25, AXIS_SEARCH_STEPS);
-    let tightest = [normals, on_arc(t)]
-        .into_iter()
-        .filter_map(|start| fit_frame(points, submap, cfg, c, start, refine).ok())
-        .min_by(|a, b| {
-            a.fit
-                .median_abs_offset_m
-                .total_cmp(&b.fit.median_abs_offset_m)
-        });
-    Ok(match tightest {
-        Some(f)
-            if f.fit.median_abs_offset_m <= DECISIVE_TIGHTENING * pca.fit.median_abs_offset_m =>
-        {
+    Ok(match fit_frame(points, submap, cfg, c, on_arc(t), refine) {
+        Ok(f) if f.fit.median_abs_offset_m <= DECISIVE_TIGHTENING * pca.fit.median_abs_offset_m => {
             f
         }
         _ => pca,
