@@ -57,19 +57,9 @@ pub fn estimate_axis(points: &[[f32; 3]], forward: [f64; 3]) -> Result<CorridorA
         cov += d * d.transpose();
     }
     cov /= n;
-    let eig = SymmetricEigen::new(cov);
-    let mut order = [0usize, 1, 2];
-    order.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
-    let sv = order.map(|i| eig.eigenvalues[i].max(0.0).sqrt());
-    let directions = order.map(|i| {
-        let d: Vector3<f64> = eig.eigenvectors.column(i).into_owned();
-        let d = if d.dot(&Vector3::from(forward)) < 0.0 {
-            -d
-        } else {
-            d
-        };
-        [d.x, d.y, d.z]
-    });
+    let (values, vectors) = eigen_descending(&cov);
+    let sv = values.map(|v| v.max(0.0).sqrt());
+    let directions = vectors.map(|d| along(d, forward));
     let elongation = if sv[1] > 0.0 {
         sv[0] / sv[1]
     } else {
@@ -82,6 +72,36 @@ pub fn estimate_axis(points: &[[f32; 3]], forward: [f64; 3]) -> Result<CorridorA
         elongation,
         directions,
     })
+}
+
+/// The eigenvalues of a symmetric 3x3 matrix, largest first, and their unit eigenvectors in
+/// the same order.
+pub(crate) fn eigen_descending(m: &Matrix3<f64>) -> ([f64; 3], [Vector3<f64>; 3]) {
+    let eig = SymmetricEigen::new(*m);
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
+    (
+        order.map(|i| eig.eigenvalues[i]),
+        order.map(|i| eig.eigenvectors.column(i).into_owned()),
+    )
+}
+
+/// `v` turned, if need be, to point with `forward` (`v . forward >= 0`; paper §IV-A.2).
+pub(crate) fn along(v: Vector3<f64>, forward: [f64; 3]) -> [f64; 3] {
+    let v = if v.dot(&Vector3::from(forward)) < 0.0 {
+        -v
+    } else {
+        v
+    };
+    [v.x, v.y, v.z]
+}
+
+/// The angle between two unit directions, deg (0-180).
+pub fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
 }
 
 /// One Gauss–Newton step on the axis direction, given points unrolled on a contour fitted

@@ -164,6 +164,7 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::axis::angle_deg;
 
     /// A tunnel of radius `r` along +x from the sensor to an end face at `end` m: wall points
     /// every 5 cm in x and 1 degree round, face points on a 5 cm grid inside the section.
@@ -187,11 +188,6 @@ mod tests {
             }
         }
         pts
-    }
-
-    fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
-        let d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-        d.clamp(-1.0, 1.0).acos().to_degrees()
     }
 
     #[test]

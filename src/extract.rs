@@ -6,7 +6,9 @@ use std::fmt;
 
 use rayon::prelude::*;
 
-use crate::axis::{CorridorAxis, centroid, estimate_axis, refine_axis, transverse_basis};
+use crate::axis::{
+    CorridorAxis, along, angle_deg, centroid, estimate_axis, refine_axis, transverse_basis,
+};
 use crate::boundary::{BoundaryPeak, ChartPoint, detect_boundaries};
 use crate::config::DecodConfig;
 use crate::contour::{ContourFit, fit_contour};
@@ -384,14 +386,6 @@ fn best_frame(
     })
 }
 
-/// The angle between two unit directions, deg (0-180).
-fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
-    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
-        .clamp(-1.0, 1.0)
-        .acos()
-        .to_degrees()
-}
-
 /// Golden-section search for the minimum of `f` on `[lo, hi]` in `steps` steps (the
 /// bracket's middle at the end).
 fn golden_minimum(f: impl Fn(f64) -> f64, lo: f64, hi: f64, steps: usize) -> f64 {
@@ -478,12 +472,7 @@ fn fit_frame(
         match refine_axis(a, e1, e2, samples, gate.max(1e-6)) {
             Some(refined) => {
                 let f = submap.forward_in_anchor;
-                let sign = if refined[0] * f[0] + refined[1] * f[1] + refined[2] * f[2] < 0.0 {
-                    -1.0
-                } else {
-                    1.0
-                };
-                let next = refined.map(|v| sign * v);
+                let next = along(nalgebra::Vector3::from(refined), f);
                 last_step_deg = angle_deg(a, next);
                 a = next;
             }

@@ -21,7 +21,9 @@
 
 use std::collections::HashMap;
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, Vector3};
+
+use crate::axis::{along, eigen_descending};
 
 /// Cell edge in voxels: a voxel-filtered wall puts up to 16 points in a cell across it, and
 /// the cell (4 voxels: 0.19 m in a 5 m tunnel, 1.6 cm in a 0.4 m pipe with the automatic
@@ -92,23 +94,20 @@ impl Moments {
         let m = Vector3::from(self.sum) / n;
         let [xx, xy, xz, yy, yz, zz] = self.outer.map(|v| v / n);
         let cov = Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz) - m * m.transpose();
-        let (values, vectors) = ascending(cov)?;
+        let (values, normal) = smallest_first(&cov)?;
         let flat = values[0] <= MAX_CELL_FLATNESS * values[1];
         // Points along one scan line lie on a line: their "normal" is any direction across it.
         let wide = values[1] >= MIN_CELL_WIDTH * values[2] && values[1] > 0.0;
-        (flat && wide).then(|| vectors.column(0).into_owned())
+        (flat && wide).then_some(normal)
     }
 }
 
-/// Eigenvalues in ascending order and their eigenvectors as columns; `None` if not finite.
-fn ascending(m: Matrix3<f64>) -> Option<([f64; 3], Matrix3<f64>)> {
-    let eig = SymmetricEigen::new(m);
-    let mut order = [0usize, 1, 2];
-    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    let values = order.map(|k| eig.eigenvalues[k]);
-    let vectors = Matrix3::from_columns(&order.map(|k| eig.eigenvectors.column(k).into_owned()));
-    (values.iter().all(|v| v.is_finite()) && vectors.iter().all(|v| v.is_finite()))
-        .then_some((values, vectors))
+/// Eigenvalues smallest first and the eigenvector of the smallest; `None` if not finite.
+fn smallest_first(m: &Matrix3<f64>) -> Option<([f64; 3], Vector3<f64>)> {
+    let (values, vectors) = eigen_descending(m);
+    let least = vectors[2];
+    (values.iter().all(|v| v.is_finite()) && least.iter().all(|v| v.is_finite()))
+        .then_some(([values[2], values[1], values[0]], least))
 }
 
 /// The corridor axis of `points` from their wall normals (module docs), unit, oriented so
@@ -143,17 +142,11 @@ pub fn wall_normal_axis(points: &[[f32; 3]], voxel_m: f64, forward: [f64; 3]) ->
     if patches < MIN_CELLS {
         return None;
     }
-    let (values, vectors) = ascending(scatter / patches as f64)?;
+    let (values, least) = smallest_first(&(scatter / patches as f64))?;
     if values[0] > MAX_AXIS_SPREAD * values[1] || values[1] < MIN_SECTION_SPREAD {
         return None;
     }
-    let axis = vectors.column(0).into_owned().try_normalize(1e-12)?;
-    let sign = if axis.dot(&Vector3::from(forward)) < 0.0 {
-        -1.0
-    } else {
-        1.0
-    };
-    Some([sign * axis.x, sign * axis.y, sign * axis.z])
+    Some(along(least.try_normalize(1e-12)?, forward))
 }
 
 #[cfg(test)]

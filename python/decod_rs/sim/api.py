@@ -83,6 +83,7 @@ class Simulation:
         self.distinctiveness = 1.0 if distinctiveness is None else float(distinctiveness)
         self.identical_joints = bool(identical_joints)
         length = defaults.length_m if length_m is None else float(length_m)
+        roll, pitch = _mount(mount_deg)
         speed = defaults.speed_mps if speed_mps is None else float(speed_mps)
         if not (np.isfinite(length) and length > 0):
             raise ValueError(f"length_m must be > 0, got {length}")
@@ -98,8 +99,8 @@ class Simulation:
             pitch_rad=defaults.pitch_rad,
             yaw_rad=defaults.yaw_rad,
             wobble_wavelength_m=defaults.wobble_wavelength_m,
-            mount_roll_rad=float(np.radians(_mount(mount_deg)[0])),
-            mount_pitch_rad=float(np.radians(_mount(mount_deg)[1])),
+            mount_roll_rad=float(np.radians(roll)),
+            mount_pitch_rad=float(np.radians(pitch)),
         )
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
