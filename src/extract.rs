@@ -12,7 +12,7 @@ use crate::axis::{
 use crate::boundary::{BoundaryPeak, ChartPoint, detect_boundaries};
 use crate::config::DecodConfig;
 use crate::contour::{ContourFit, fit_contour};
-use crate::corridor_end::trim_end_face;
+use crate::corridor_end::{EndFace, face_in_view, trim_end_face};
 use crate::descriptor::{bottom_mask, build_descriptor, column_samples};
 use crate::landmark::Landmark;
 use crate::submap::Submap;
@@ -158,6 +158,10 @@ pub struct SubmapDiagnostics {
     /// The whole cloud failed the corridor test and the part before an end face in view
     /// passed it (`crate::corridor_end`): the diagnostics above are that part's.
     pub end_face: bool,
+    /// An end face in view (`crate::corridor_end::face_in_view`): along the settled axis of a
+    /// corridor, or along the heading or the principal direction of a submap rejected as
+    /// none (the last metres before a blind end).
+    pub face_in_view: Option<EndFace>,
 }
 
 /// Landmarks, rejections and diagnostics of one submap.
@@ -188,6 +192,10 @@ pub struct ExtractionOutcome {
 pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcome {
     let mut out = ExtractionOutcome::default();
     if let Err(reason) = extract_into(submap, cfg, &mut out) {
+        let enough = submap.points_in_anchor.len() >= cfg.submap.min_points.max(3);
+        if out.diagnostics.face_in_view.is_none() && enough {
+            out.diagnostics.face_in_view = end_face_of_rejected(submap, cfg, out.diagnostics.axis);
+        }
         out.rejections.push(Rejection {
             submap_stamp: submap.anchor_stamp,
             reason,
@@ -223,6 +231,7 @@ fn extract_into(
         Ok(found) => found,
         Err(reason) => before_end_face(submap, cfg, &axis, &mut out.diagnostics).ok_or(reason)?,
     };
+    out.diagnostics.face_in_view = end_face_in_view(submap, cfg, &frame);
     // 6. Boundaries.
     let detection = detect_boundaries(
         &chart.points,
@@ -266,6 +275,26 @@ fn corridor(
     Ok((frame, chart))
 }
 
+/// The end face the whole cloud shows along the settled axis, looked for in slabs of a
+/// descriptor row like [`before_end_face`]'s (`crate::corridor_end::face_in_view`).
+fn end_face_in_view(submap: &Submap, cfg: &DecodConfig, frame: &CorridorFrame) -> Option<EndFace> {
+    face_in_view(&submap.points_in_anchor, frame.a, true, face_slab_m(cfg))
+}
+
+/// The end face a submap that is not a corridor shows along the sensor's heading or its
+/// principal direction (the last metres before a blind end, where the face fills the view).
+fn end_face_of_rejected(submap: &Submap, cfg: &DecodConfig, pca_axis: [f64; 3]) -> Option<EndFace> {
+    [submap.forward_in_anchor, pca_axis]
+        .into_iter()
+        .filter(|g| g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0))
+        .find_map(|g| face_in_view(&submap.points_in_anchor, g, false, face_slab_m(cfg)))
+}
+
+/// Slabs of a descriptor row for the end-face search.
+fn face_slab_m(cfg: &DecodConfig) -> f64 {
+    cfg.descriptor.half_length_m * 2.0 / cfg.descriptor.rows.max(1) as f64
+}
+
 /// Steps 3-5 on the points before an end face in view ([`crate::corridor_end`]; not in
 /// the paper), for a submap whose whole cloud failed them: the face is looked for along the
 /// sensor's heading and along each principal direction, the face's normal is the axis, and
@@ -279,7 +308,7 @@ fn before_end_face(
     axis: &CorridorAxis,
     diag: &mut SubmapDiagnostics,
 ) -> Option<(CorridorFrame, Chart)> {
-    let slab = cfg.descriptor.half_length_m * 2.0 / cfg.descriptor.rows.max(1) as f64;
+    let slab = face_slab_m(cfg);
     let guesses = [
         submap.forward_in_anchor,
         axis.directions[0],

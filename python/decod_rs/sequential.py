@@ -63,6 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import Landmark, PairResult
+from decod_rs.end_faces import FaceFactors
 from decod_rs.graph import LoopConstraint
 from decod_rs.matching import PairMemo
 from decod_rs.tracks import world_origins
@@ -91,10 +92,16 @@ class SequentialFactors:
     rejected: dict[str, int]
     sigma_transverse_m: float | None = None
     polarity: float | None = None
+    #: The factors between views of an end face (:mod:`decod_rs.end_faces`), also in
+    #: ``constraints``.
+    end_faces: FaceFactors | None = None
 
     def report(self) -> dict[str, Any]:
+        faces = self.end_faces
         return {
             "factors": len(self.constraints),
+            "end_face_factors": 0 if faces is None else len(faces.constraints),
+            "end_face_jumps": 0 if faces is None else faces.jumps,
             "candidate_pairs": self.pairs,
             "rejected": self.rejected,
             "detection_sigma_m": self.sigma_m,

@@ -183,6 +183,11 @@ pub(crate) struct PyDiagnostics {
     /// The cloud was cut before an end face in view (a tunnel's end, a pipe's cap): the
     /// figures above are the part before it.
     end_face: bool,
+    /// The foot of the sensor on an end face in view (a tunnel's end, a pipe's cap), anchor
+    /// frame, metres; None when the submap sees none.
+    face_point: Option<(f64, f64, f64)>,
+    /// That face's unit normal, anchor frame, oriented like `axis`.
+    face_normal: Option<(f64, f64, f64)>,
 }
 
 impl From<&SubmapDiagnostics> for PyDiagnostics {
@@ -202,6 +207,8 @@ impl From<&SubmapDiagnostics> for PyDiagnostics {
             dog_sigma_m: d.dog_sigma_m,
             dog_threshold_m: d.dog_threshold_m,
             end_face: d.end_face,
+            face_point: d.face_in_view.map(|f| f.point.into()),
+            face_normal: d.face_in_view.map(|f| f.normal.into()),
         }
     }
 }

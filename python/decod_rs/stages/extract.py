@@ -16,6 +16,7 @@ from decod_rs import _core
 from decod_rs._core import Landmark
 from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
+from decod_rs.end_faces import FaceView
 from decod_rs.ingest import StreamHealth, ingest_section, warn_once
 from decod_rs.progress import Progress
 from decod_rs.survey import Survey, survey_config
@@ -38,6 +39,8 @@ class SubmapLandmarks:
     #: Submaps cut before an end face in view (a tunnel's end, a pipe's cap) whose part before
     #: it was a corridor (``decod_rs._core.SubmapDiagnostics.end_face``).
     end_face_submaps: int = 0
+    #: End faces in view of the anchors (:mod:`decod_rs.end_faces`).
+    faces: list[FaceView] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -109,7 +112,16 @@ def extract(
             out.anchor_stamps.append(submap.anchor_stamp)
             out.anchor_poses.append(submap.world_from_anchor)
             out.landmarks.extend(submap.result.landmarks)
-            out.end_face_submaps += int(submap.result.diagnostics.end_face)
+            diag = submap.result.diagnostics
+            out.end_face_submaps += int(diag.end_face)
+            if diag.face_point is not None and diag.face_normal is not None:
+                out.faces.append(
+                    FaceView(
+                        submap.anchor_stamp,
+                        np.asarray(diag.face_point, dtype=np.float64),
+                        np.asarray(diag.face_normal, dtype=np.float64),
+                    )
+                )
             for rejection in submap.result.rejections:
                 out.rejections[rejection.kind] = out.rejections.get(rejection.kind, 0) + 1
                 out.rejection_messages.append(str(rejection))

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from decod_rs._core import QueryResult
 from decod_rs.config import Config
 from decod_rs.disambiguation import CorrectedFrame
+from decod_rs.end_faces import face_constraints
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
@@ -88,17 +89,24 @@ def track_terms(
     polarity = boundary_polarity(ex.landmarks)
     seq = None
     if cfg.graph.sequential:
+        path_at = path_along(*scans)
         seq = sequential_constraints(
             ex.landmarks,
             matched.tracks,
             anchors,
             anchor_stamps,
-            path_along(*scans),
+            path_at,
             cfg,
             across,
             matched.pairs,
             polarity=polarity,
         )
+        views = ex.faces if cfg.graph.end_faces else []
+        faces = face_constraints(
+            views, anchors, anchor_stamps, path_at, matched.split, cfg, seq.sigma_m
+        )
+        seq.constraints += faces.constraints  # the passes' scales take them too
+        seq.end_faces = faces
     return TrackTerms(across, polarity, seq)
 
 
