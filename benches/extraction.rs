@@ -1,12 +1,13 @@
 //! Extraction on a 100k-point pipe submap (target <= 20 ms, DESIGN.md "Targets"), per stage
 //! and end to end, with element throughput, and on one that looks at the pipe's end face (the
-//! retry of `decod::corridor_end`), and on a horseshoe sampled lopsidedly, as a pitched
+//! retry of `decod::corridor_end`, and the face search every submap now gets), and on a horseshoe sampled lopsidedly, as a pitched
 //! sensor samples it (the axis decision of `decod::wall_normals`); and the accumulation of a 64-beam window into a
 //! submap (scans moved into the anchor frame, voxel-filtered). `cargo bench --bench extraction`.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use decod::DecodConfig;
 use decod::axis::estimate_axis;
+use decod::corridor_end::face_in_view;
 use decod::extract::extract_landmarks;
 use decod::geometry::Pose;
 use decod::scan::Scan;
@@ -191,6 +192,23 @@ fn bench(c: &mut Criterion) {
     group.throughput(Throughput::Elements(100_000));
     group.bench_function("extract_landmarks_end_face/100000", |b| {
         b.iter(|| extract_landmarks(std::hint::black_box(&end), &cfg))
+    });
+    // The face as a reference (`decod_rs.end_faces`): looked for in every submap along its
+    // settled axis, found in this one.
+    assert!(
+        found.diagnostics.face_in_view.is_some(),
+        "the face must be found"
+    );
+    let slab = cfg.descriptor.half_length_m * 2.0 / cfg.descriptor.rows as f64;
+    group.bench_function("face_in_view/100000", |b| {
+        b.iter(|| {
+            face_in_view(
+                std::hint::black_box(&end.points_in_anchor),
+                [1.0, 0.0, 0.0],
+                true,
+                slab,
+            )
+        })
     });
     let submap = horseshoe_submap(100_000);
     let tunnel = DecodConfig::tunnel();
