@@ -20,7 +20,7 @@ import pytest
 
 from decod_rs import _core
 from decod_rs.bench.matrix import _world_axial
-from decod_rs.commands.run import print_summary
+from decod_rs.commands.run import print_summary, print_within_passes
 from decod_rs.evaluate import FINE_TOLERANCE_M, evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -105,7 +105,9 @@ def _face_positions(sim: Path, config: dict) -> list[float]:
     return out
 
 
-def test_an_end_face_ties_the_last_metres_of_the_return(tmp_path: Path) -> None:
+def test_an_end_face_ties_the_last_metres_of_the_return(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     sim = tmp_path / "sim"
     simulate(
         "shield",
@@ -130,6 +132,9 @@ def test_an_end_face_ties_the_last_metres_of_the_return(tmp_path: Path) -> None:
     report, trajectory = runs["faces"]
     assert report["sequential"]["end_face_factors"] >= 2, report["sequential"]
     assert runs["no_faces"][0]["sequential"]["end_face_factors"] == 0
+    print_within_passes(tmp_path / "faces")  # what `decod run` prints
+    faces_line = f"{report['sequential']['end_face_factors']} from an end face in view"
+    assert faces_line in capsys.readouterr().out
 
     # The face is at the tunnel's start, x = -1 m (the simulator's x_min_m); every view puts
     # it within 2 cm (measured: within 1 cm, from 3 to 10 m away).

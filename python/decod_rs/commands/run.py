@@ -140,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     )
     print_summary(summary)
     print_joints(args.out)
+    print_within_passes(args.out)
     print_unmeasured(args.out)
     if args.survey is not None:
         print_survey(args.out)
@@ -160,6 +161,20 @@ def print_joints(out: Path) -> None:
     print(
         f"joints         {len(rows)} in joints.csv: {confirmed} loop-confirmed, "
         f"{both} seen on both passes, {once} a single unconfirmed view"
+    )
+
+
+def print_within_passes(out: Path) -> None:
+    """The factors within each pass (``report.json`` ``sequential``): boundaries tracked
+    from anchor to anchor, and among them those of an end face in view."""
+    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["sequential"]
+    if section is None:
+        print("within passes  none (graph.sequential = false, or no loop)")
+        return
+    faces = section.get("end_face_factors", 0)
+    print(
+        f"within passes  {section['factors'] - faces} boundary factors, "
+        f"{faces} from an end face in view"
     )
 
 
