@@ -17,6 +17,14 @@
 //! stretch of corridor that the usual steps (contour fit, corridor test) accept or reject.
 //! `crate::extract` tries this only on a submap the usual steps rejected, so no submap
 //! that was accepted before changes.
+//!
+//! The face is also a reference along the axis ([`face_in_view`]): every submap is searched
+//! for one (along its settled axis, or, when it is no corridor, along its heading and
+//! principal direction), and its distance from the anchor, seen from consecutive anchors of
+//! a pass, measures their displacement the way a tracked boundary does
+//! (`decod_rs.end_faces`). Near the face the wall ahead is too short a stub for a boundary
+//! seen twice, so before this the last 9-26 m of a forward sensor's return were measured by
+//! nothing.
 
 use nalgebra::Vector3;
 

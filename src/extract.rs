@@ -189,6 +189,10 @@ pub struct ExtractionOutcome {
 /// 5. unrolling of every point to `(z, p, s)` once;
 /// 6. boundaries by DoG + NMS on the axial profile;
 /// 7. one descriptor per boundary, origin `o` = contour centre at the peak.
+///
+/// Every submap is also searched for an end face in view (`SubmapDiagnostics::face_in_view`,
+/// [`crate::corridor_end::face_in_view`]; not in the paper): along the settled axis once
+/// step 4 has one, along the heading or the principal direction when the submap is rejected.
 pub fn extract_landmarks(submap: &Submap, cfg: &DecodConfig) -> ExtractionOutcome {
     let mut out = ExtractionOutcome::default();
     if let Err(reason) = extract_into(submap, cfg, &mut out) {

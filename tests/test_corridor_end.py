@@ -27,6 +27,22 @@ from decod_rs.sim import simulate
 from decod_rs.tum import interpolate_poses, read_tum
 
 
+def _simulate_7m_shield(sim: Path, drift: float | str) -> None:
+    """The held-out corridor: a 7 m shield tunnel, 25 m one way, the forward sensor and a
+    turn, seed 33."""
+    simulate(
+        "shield",
+        sim,
+        seed=33,
+        sensor="avia",
+        return_mode="turn",
+        length_m=25.0,
+        drift=drift,
+        scene_overrides={"radius_m": 3.5},
+        progress=False,
+    )
+
+
 def _views_by_cut(sim: Path, config: dict) -> tuple[list[float], list[float]]:
     """Each landmark's axial distance to the nearest true joint, for the submaps cut before
     an end face and for the others, from the log extracted again under the run's config."""
@@ -55,17 +71,7 @@ def test_a_forward_sensor_keeps_the_boundaries_before_the_tunnels_end(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     sim, out = tmp_path / "sim", tmp_path / "run"
-    simulate(
-        "shield",
-        sim,
-        seed=33,
-        sensor="avia",
-        return_mode="turn",
-        length_m=25.0,
-        drift=1.0,
-        scene_overrides={"radius_m": 3.5},
-        progress=False,
-    )
+    _simulate_7m_shield(sim, 1.0)
     summary = run_log(sim / "log", out, imu_topic="/imu", progress=False, plots=False)
     report = json.loads((out / "report.json").read_text())
     cut_submaps = report["counts"]["submaps_cut_at_end_face"]
@@ -109,17 +115,7 @@ def test_an_end_face_ties_the_last_metres_of_the_return(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     sim = tmp_path / "sim"
-    simulate(
-        "shield",
-        sim,
-        seed=33,
-        sensor="avia",
-        return_mode="turn",
-        length_m=25.0,
-        drift="legs:-0.05,-0.15",
-        scene_overrides={"radius_m": 3.5},
-        progress=False,
-    )
+    _simulate_7m_shield(sim, "legs:-0.05,-0.15")
     no_faces = tmp_path / "no_faces.toml"
     no_faces.write_text("[graph]\nend_faces = false\n")
     runs = {}
