@@ -48,7 +48,8 @@ pub const MIN_CELLS: usize = 30;
 
 /// The normals must leave one direction clearly out: the smallest eigenvalue of their
 /// (unit-trace) scatter below this share of the middle one. Normals of a closed room spread
-/// over three directions alike and give no axis.
+/// over three directions alike and give no axis; the pitched 16-beam horseshoe's submaps,
+/// whose visible facets lean towards the sensor, measured 0.31.
 pub const MAX_AXIS_SPREAD: f64 = 0.5;
 
 /// ... and turn about it: the middle eigenvalue at least this (normals spread over at least
