@@ -88,3 +88,19 @@ def test_the_trajectory_plot_shades_the_stretches(tmp_path: Path) -> None:
     # The band is light grey behind the lines: pixels that were white are now grey.
     grey = np.all(np.abs(b[..., :3] - 0.88) < 0.02, axis=-1) & np.all(a[..., :3] > 0.99, axis=-1)
     assert grey.sum() > 0.01 * grey.size
+
+
+def test_the_trajectory_plot_marks_the_anchors_an_end_face_ties(tmp_path: Path) -> None:
+    from matplotlib.image import imread
+
+    from decod_rs.plots import plot_trajectories
+
+    t, poses, _, _ = _out_and_back()
+    plain = plot_trajectories(tmp_path / "plain.png", t, poses, poses)
+    marked = plot_trajectories(tmp_path / "faces.png", t, poses, poses, faces=[30.0, 33.0, 36.0])
+    a, b = imread(plain), imread(marked)
+    assert a.shape == b.shape
+    # Black ticks on the along-the-corridor panel (the lines are red and blue), one per
+    # anchor, and the legend's.
+    black = np.all(b[..., :3] < 0.1, axis=-1) & ~np.all(a[..., :3] < 0.1, axis=-1)
+    assert black.sum() > 100, black.sum()

@@ -46,7 +46,7 @@ from decod_rs.graph import LoopConstraint
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["ACROSS_SIGMA_M", "FaceFactors", "FaceView", "face_constraints"]
+__all__ = ["ACROSS_SIGMA_M", "FaceFactors", "FaceView", "face_constraints", "tied_anchors"]
 
 #: Sigma across the axis of a face factor, metres: large against the odometry's few
 #: centimetres across a corridor, so the factor measures along the axis only.
@@ -118,3 +118,11 @@ def face_constraints(
 
 def _world(pose: FloatArray, point: FloatArray) -> FloatArray:
     return np.asarray(pose[:3, :3] @ point + pose[:3, 3], dtype=np.float64)
+
+
+def tied_anchors(faces: FaceFactors | None, anchor_stamps: FloatArray) -> list[float]:
+    """The stamps of the anchors the face factors tie, first to last (for the figure)."""
+    if faces is None:
+        return []
+    ends = {k for c in faces.constraints for k in (c.db_index, c.query_index)}
+    return [float(anchor_stamps[k]) for k in sorted(ends)]

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from decod_rs.config import MODES, Config
+from decod_rs.end_faces import tied_anchors
 from decod_rs.io import find_imu_topic
 from decod_rs.refinement import rebuild_report
 from decod_rs.run_files import check_run_dir, staged_run_dir
@@ -192,7 +193,8 @@ def finish_run(
     if plots:
         t0 = time.perf_counter()
         kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
-        run_plots(out, *scans, correction.poses, kept, ex.landmarks, odometry_only[0])
+        faces = tied_anchors(None if seq is None else seq.end_faces, anchors)
+        run_plots(out, *scans, correction.poses, kept, ex.landmarks, odometry_only[0], faces)
         timings["plots"] = time.perf_counter() - t0
 
     summary = run_summary(out, ex, matched, scans, timings)

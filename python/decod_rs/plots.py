@@ -72,12 +72,14 @@ def plot_trajectories(
     loops: Sequence[tuple[float, float]] = (),
     ground_truth: tuple[ArrayLike, ArrayLike] | None = None,
     unmeasured: Sequence[tuple[float, float]] = (),
+    faces: Sequence[float] = (),
 ) -> Path:
     """Trajectory before/after: ``stamps`` (N,), ``odometry`` and ``corrected`` (N, 4, 4)
     ``world_from_body``; ``loops``: accepted (query_stamp, db_stamp) pairs, drawn between
     the two positions on each estimate; ``ground_truth``: optional (stamps, poses);
     ``unmeasured``: (from, to) stamps that only the odometry places (``decod_rs.unmeasured``),
-    shaded on the along-the-corridor panel."""
+    shaded on the along-the-corridor panel; ``faces``: stamps of the anchors an end-face
+    factor ties (``decod_rs.end_faces``), marked on the corrected trajectory there."""
     st = np.asarray(stamps, dtype=np.float64)
     series: dict[str, tuple[FloatArray, FloatArray]] = {}
     if ground_truth is not None:
@@ -136,6 +138,11 @@ def plot_trajectories(
     for k, (a, b) in enumerate(unmeasured):
         label = "odometry only (no loop or track)" if k == 0 else None
         along.axvspan(a - t0, b - t0, color="0.88", zorder=0, label=label)
+    s, p = series["corrected"]
+    seen = np.array([f for f in faces if s[0] <= f <= s[-1]], dtype=np.float64)
+    if seen.size:
+        where = interpolate_poses(s, p, seen)[:, :3, 3] @ axis
+        along.plot(seen - t0, where, "k|", ms=12, mew=1.5, label="end face in view (factor)")
     along.set_xlabel("time [s]")
     along.set_ylabel("position along the main axis [m]")
     along.set_title("along the corridor")

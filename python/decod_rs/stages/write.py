@@ -4,6 +4,7 @@ landmarks, joints, the graph, the run's survey, ``report.json`` and the plots.""
 from __future__ import annotations
 
 import platform
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -279,6 +280,7 @@ def run_plots(
     results: list[QueryResult],
     landmarks: list[Landmark],
     unmeasured: list[Stretch],
+    faces: Sequence[float] = (),
 ) -> None:
     from decod_rs.plots import plot_descriptor_pair, plot_trajectories
 
@@ -290,6 +292,7 @@ def run_plots(
         corrected,
         [(r.query_stamp, r.candidate_stamp) for r in accepted],
         unmeasured=[(u.from_stamp, u.to_stamp) for u in unmeasured],
+        faces=faces,
     )
     by_key = {(lm.submap_stamp, tuple(np.round(lm.origin, 6))): lm for lm in landmarks}
     # The strongest few accepted pairs: enough to inspect, not a file per loop.
