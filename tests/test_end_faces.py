@@ -82,3 +82,19 @@ def test_pairs_across_passes_at_a_standstill_or_that_jump_are_not_factors() -> N
     # Without a split (one pass) the pair across the turn is a factor like any other.
     one_pass = face_constraints(views, anchors, anchor_stamps, path.__getitem__, None, cfg, 0.02)
     assert one_pass.pairs == 3 and len(one_pass.constraints) == 2
+
+
+def test_a_robot_moving_across_the_corridor_is_not_a_jump() -> None:
+    # The feet of the sensor on the face move with the robot across the corridor (2.45 m
+    # here, a wide tunnel), more than the odometry's allowance over 3 m of path: only the
+    # distance along the face's normal is compared.
+    cfg = load_config(None, "tunnel")
+    anchors = {10.0: _pose(10.0), 13.0: _pose(7.0)}
+    anchors[13.0][1, 3] = 2.5
+    stamps = np.array([10.0, 13.0])
+    views = [_view(s, anchors[s]) for s in (10.0, 13.0)]
+    path = {10.0: 0.0, 13.0: 3.0}
+    allowance = cfg.matching.consistency_tolerance_m + cfg.matching.consistency_drift_fraction * 3
+    assert allowance < 2.45
+    out = face_constraints(views, anchors, stamps, path.__getitem__, None, cfg, 0.02)
+    assert (out.pairs, out.jumps, len(out.constraints)) == (1, 0, 1)

@@ -21,7 +21,8 @@ the 10 m horseshoe within 1.3 cm (2.7 cm from 3 m, its floor in view).
 Consecutive views of one pass become a factor when the anchors moved apart (by the detection
 sigma or more: at a standstill a pair measures nothing the odometry does not) and the
 odometry agrees with them (``consistency_tolerance_m + consistency_drift_fraction * path``,
-the sequential factors' rule: a face mistaken for another implies a jump). The factor is the
+the sequential factors' rule, along the face's normal: a face mistaken for another implies a
+jump). The factor is the
 landmark factor of Eq. 3 between the two anchors, on the feet and the face's normals; along
 the axis it takes the detection noise measured on the run's boundary tracks (a face is
 measured at least as well as a boundary); across it the feet are wherever the sensor was, so
@@ -55,8 +56,8 @@ ACROSS_SIGMA_M = 1.0
 
 @dataclass(frozen=True)
 class FaceView:
-    """An end face in view of one anchor: its stamp, the point where the corridor's centre
-    line meets the face and the face's unit normal (anchor frame)."""
+    """An end face in view of one anchor: its stamp, the foot of the sensor on the face and
+    the face's unit normal (anchor frame)."""
 
     stamp: float
     point: FloatArray
@@ -95,9 +96,13 @@ def face_constraints(
         if path < sigma_m:
             continue  # at a standstill the pair measures nothing the odometry does not
         out.pairs += 1
-        wa, wb = (_world(anchors[v.stamp], v.point) for v in (a, b))
+        # Where the odometry puts the face from each anchor, along the face's normal (the
+        # feet also move across it, with the robot).
+        pose_a, pose_b = anchors[a.stamp], anchors[b.stamp]
+        normal = pose_a[:3, :3] @ a.normal
+        apart = float((_world(pose_a, a.point) - _world(pose_b, b.point)) @ normal)
         allowance = m.consistency_tolerance_m + m.consistency_drift_fraction * path
-        if np.linalg.norm(wa - wb) > allowance:
+        if abs(apart) > allowance:
             out.jumps += 1
             continue
         out.constraints.append(
