@@ -169,7 +169,7 @@ def print_within_passes(out: Path) -> None:
     from anchor to anchor, and among them those of an end face in view."""
     section = json.loads((out / "report.json").read_text(encoding="utf-8"))["sequential"]
     if section is None:
-        print("within passes  none (graph.sequential = false, or no loop)")
+        print("within passes  none (graph.sequential = false, or --no-loops)")
         return
     faces = section.get("end_face_factors", 0)
     print(
