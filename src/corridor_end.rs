@@ -26,9 +26,7 @@
 //! seen twice, so before this the last 9-26 m of a forward sensor's return were measured by
 //! nothing.
 
-use nalgebra::Vector3;
-
-use crate::axis::{along, angle_deg, estimate_axis};
+use crate::axis::{angle_deg, estimate_axis};
 
 /// A slab of the axial histogram is an end face when it holds at least this many times the
 /// median slab's points: a wall slab of the simulated shield seen by the forward sensor holds
@@ -66,13 +64,7 @@ pub fn trim_end_face(
         return None;
     }
     let sample = strided(points);
-    // The slab is chosen along the current axis, so a guess a few degrees off selects a
-    // tilted strip of the wall beside the face: a few rounds converge on the face's normal.
-    let (mut face, mut normal) = (face_slab(&sample, axis, slab_m)?, axis);
-    for _ in 0..NORMAL_ROUNDS {
-        normal = face_normal(&sample, normal, face, slab_m)?;
-        face = face_slab(&sample, normal, slab_m)?;
-    }
+    let (face, normal) = settled_face(&sample, axis, slab_m)?;
     let along = |p: &[f32; 3]| dot3(p, &normal);
     // Where the face is along the measured axis: the median of its slab's points (ahead of
     // the sensor when positive, behind it when negative).
@@ -146,35 +138,28 @@ pub fn face_in_view(
         return None;
     }
     let sample = strided(points);
-    let (mut face, mut normal) = (face_slab(&sample, axis, slab_m)?, axis);
-    for _ in 0..NORMAL_ROUNDS {
-        normal = along(
-            Vector3::from(face_normal(&sample, normal, face, slab_m)?),
-            axis,
-        );
-        face = face_slab(&sample, normal, slab_m)?;
-    }
+    let (face, normal) = settled_face(&sample, axis, slab_m)?;
     if settled && angle_deg(normal, axis) > MAX_FACE_TILT_DEG {
         return None;
     }
-    let along = |p: &[f32; 3]| dot3(p, &normal);
+    let depth = |p: &[f32; 3]| dot3(p, &normal);
     let rough = median(
         sample
             .iter()
-            .map(along)
+            .map(depth)
             .filter(|&z| in_slab(z, face, slab_m))
             .collect(),
     )?;
     // The face alone: its points within half a slab of the first estimate.
     let on_face: Vec<f64> = sample
         .iter()
-        .map(along)
+        .map(depth)
         .filter(|z| (z - rough).abs() < 0.5 * slab_m)
         .collect();
     let share = on_face.len() as f64 / sample.len() as f64;
     let plane = median(on_face)?;
-    let below = sample.iter().filter(|p| along(p) < plane - slab_m).count();
-    let above = sample.iter().filter(|p| along(p) > plane + slab_m).count();
+    let below = sample.iter().filter(|p| depth(p) < plane - slab_m).count();
+    let above = sample.iter().filter(|p| depth(p) > plane + slab_m).count();
     if (below.min(above) as f64) > MAX_BEYOND_SHARE * sample.len() as f64 {
         return None;
     }
@@ -184,6 +169,19 @@ pub fn face_in_view(
         normal,
         share,
     })
+}
+
+/// The face's slab (lower edge) and normal (oriented like `axis`, [`face_normal`]) from the
+/// guess `axis`: the slab is chosen along the current axis, so a guess a few degrees off
+/// selects a tilted strip of the wall beside the face, and [`NORMAL_ROUNDS`] rounds of slab
+/// and plane fit converge on the face's normal.
+fn settled_face(sample: &[[f32; 3]], axis: [f64; 3], slab_m: f64) -> Option<(f64, [f64; 3])> {
+    let (mut face, mut normal) = (face_slab(sample, axis, slab_m)?, axis);
+    for _ in 0..NORMAL_ROUNDS {
+        normal = face_normal(sample, normal, face, slab_m)?;
+        face = face_slab(sample, normal, slab_m)?;
+    }
+    Some((face, normal))
 }
 
 /// The lower edge of the densest slab along `axis` when it is a face ([`SPIKE_RATIO`],
