@@ -240,14 +240,34 @@ def test_auto_schedule_fills_the_descriptor_of_a_sparse_sensor() -> None:
     # windows long enough that the points of a submap fill DESCRIPTOR_FILL of the cells
     # (Poisson: n = -ln(1 - f) cells); a dense one keeps the visible-window schedule.
     dense = derive(replace(_probe(0.2, 0.55, 0.4), descriptor_points=5000.0))
-    sparse = derive(replace(_probe(0.2, 0.55, 0.4), descriptor_points=250.0))
+    sparse = derive(replace(_probe(0.2, 0.55, 0.4), descriptor_points=350.0))
     assert dense["submap"] == derive(_probe(0.2, 0.55, 0.4))["submap"]
-    needed = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS / 250.0
+    needed = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS / 350.0
     assert sparse["submap"]["scans_per_submap"] == round(needed)
     assert sparse["submap"]["interval_s"] == pytest.approx(needed / 10.0, rel=1e-3)
     assert sparse["submap"]["interval_s"] > dense["submap"]["interval_s"]
     # Two views then share about half of their cells: twice the matcher's overlap floor.
     assert DESCRIPTOR_FILL**2 == pytest.approx(2 * 0.25)
+
+
+def test_auto_schedule_keeps_a_window_shorter_than_the_drift_smears() -> None:
+    from decod_rs.autoscale import DRIFT_FRACTION
+
+    # The fresh tier's hume pipe with 16 beams rolled 30 deg and pitched 10 deg: one probe of
+    # four saw the whole ring from 2.7 m, and a scan put 35 points into a descriptor-long
+    # stretch there, so filling a descriptor asked for 12 s windows (4.7 m of travel). Odometry
+    # drifting by DRIFT_FRACTION smears a boundary over such a window by 0.7 m, three times the
+    # descriptor's half length: no loop under either drift. The window stays short enough
+    # that the smear is at most half of the half length.
+    probe = replace(_probe(0.3, 2.67, 0.39), descriptor_points=35.0)
+    derived = derive(probe)
+    half = derived["descriptor"]["half_length_m"]
+    window = derived["submap"]["scans_per_submap"] / probe.scan_rate_hz
+    assert DRIFT_FRACTION * probe.speed_mps * window <= 0.5 * half * 1.05
+    assert derived["submap"]["interval_s"] == pytest.approx(window, rel=0.05)
+    # Where the descriptor fills within that time, the fill rule alone sets the window.
+    level = replace(_probe(0.3, 0.9, 0.39), descriptor_points=430.0)
+    assert DRIFT_FRACTION * 0.39 * derive(level)["submap"]["interval_s"] < 0.5 * half
 
 
 def test_auto_report_is_strict_json_when_a_distance_was_never_sampled() -> None:

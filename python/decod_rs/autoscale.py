@@ -60,8 +60,16 @@ at ``r_ref = 3 m``; ``k = r / r_ref``; the pipe preset is the same rule at k = 0
   there; elsewhere in the matrix it moved only the 0.3 m hume pipe's anchors (0.59 -> 0.61
   s). Full matrix (m70 -> m71): pe runs with 16 beams covering under half the joints 7 ->
   1, under uneven drift 0 -> 6-7 loops each (endpoint 3.2 m -> 0.00-1.05 m), the hume pipe
-  with 16 beams 861 -> 970 loops, no loop wrong anywhere; the minimum time between loop
-  partners ``max(10 s, 2 max_range / v + interval)``: two views of the same pass never pair;
+  with 16 beams 861 -> 970 loops, no loop wrong anywhere. Filling is capped by the drift:
+  a window lasts at most ``half_length / (SMEAR_DRIFTS * DRIFT_FRACTION * v)``, so that
+  odometry drifting by ``DRIFT_FRACTION`` smears a boundary across it by at most half the
+  descriptor's half length. The fresh tier's 0.6 m hume pipe with 16 beams rolled 30 deg
+  and pitched 10 deg had one probe of four see the whole ring from 2.7 m and a scan put 35
+  points into a descriptor there, so filling asked for 12 s windows (4.7 m of travel, 0.7 m
+  of smear at 15 %): no loop under either drift. Capped (2.0-2.3 s): 65 and 63 loops, all
+  right, RMSE 0.85 -> 0.04 m and 1.29 -> 0.01 m; nothing in the full matrix changed (m124:
+  the cap never binds there). The minimum time between loop partners is
+  ``max(10 s, 2 max_range / v + interval)``: two views of the same pass never pair;
 - the elongation gate is only a PCA-ambiguity guard (1.1): a forward-looking sensor sees
   a 5 m tunnel to 12 m, ratio 1.3, and the corridor test is the contour fit, not how far the
   sensor sees.
@@ -99,6 +107,10 @@ PROBE_MAX_SCANS = 300
 COVERAGE_SECTORS = 36
 COVERAGE_FRACTION = 0.9
 DRIFT_FRACTION = 0.15
+#: A window lasts at most ``half_length / (SMEAR_DRIFTS * DRIFT_FRACTION * v)``: odometry
+#: drifting by DRIFT_FRACTION smears a boundary across a window by at most half of the
+#: descriptor's half length (module docs, schedule).
+SMEAR_DRIFTS = 2.0
 RELIEF_MARGIN = 1.5
 BOTTOM_MASK_DEG = 30.0
 #: Descriptor cells outside the bottom mask: 16 x 256 x (300 / 360).
@@ -338,6 +350,8 @@ def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
     points = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS
     fill = points / max(probe.descriptor_points, 1.0) / probe.scan_rate_hz
     interval = max((max_range - min(z_near, max_range / 2)) / (3.0 * v), fill, 0.5)
+    # ... but no longer than the drift decod allows for smears a boundary (module docs).
+    interval = min(interval, max(half / (SMEAR_DRIFTS * DRIFT_FRACTION * v), 0.5))
     scans = int(np.clip(round(interval * probe.scan_rate_hz), 5, 40))
     return {
         "submap": {
