@@ -251,7 +251,7 @@ def test_auto_schedule_fills_the_descriptor_of_a_sparse_sensor() -> None:
 
 
 def test_auto_schedule_keeps_a_window_shorter_than_the_drift_smears() -> None:
-    from decod_rs.autoscale import DRIFT_FRACTION
+    from decod_rs.autoscale import DRIFT_FRACTION, auto_config
 
     # The fresh tier's hume pipe with 16 beams rolled 30 deg and pitched 10 deg: one probe of
     # four saw the whole ring from 2.7 m, and a scan put 35 points into a descriptor-long
@@ -268,6 +268,9 @@ def test_auto_schedule_keeps_a_window_shorter_than_the_drift_smears() -> None:
     # Where the descriptor fills within that time, the fill rule alone sets the window.
     level = replace(_probe(0.3, 0.9, 0.39), descriptor_points=430.0)
     assert DRIFT_FRACTION * 0.39 * derive(level)["submap"]["interval_s"] < 0.5 * half
+    # report.json says which rule set the interval.
+    assert auto_config(probe, None)[1]["schedule"]["rule"] == "drift_cap"
+    assert auto_config(level, None)[1]["schedule"]["rule"] == "descriptor_fill"
 
 
 def test_auto_report_is_strict_json_when_a_distance_was_never_sampled() -> None:

@@ -74,7 +74,9 @@ at ``r_ref = 3 m``; ``k = r / r_ref``; the pipe preset is the same rule at k = 0
   a 5 m tunnel to 12 m, ratio 1.3, and the corridor test is the contour fit, not how far the
   sensor sees.
 
-``report.json`` records the measurements and every derived value (``auto``).
+``report.json`` records the measurements and every derived value (``auto``), and which of
+the schedule's three rules set the anchor interval (``auto.schedule``: ``visible_window``,
+``descriptor_fill``, ``drift_cap`` or ``minimum``, with each rule's interval).
 """
 
 from __future__ import annotations
@@ -337,6 +339,38 @@ def probe_corridor(
     return replace(probe, descriptor_points=_descriptor_points(windows, probed, probe)), imu
 
 
+def _schedule(probe: CorridorProbe) -> dict[str, Any]:
+    """The anchor interval (s) and the three rules behind it (module docs, schedule): an
+    anchor every third of the visible window of travel, at least the time that fills a
+    descriptor, at most the time over which the drift decod allows for smears a boundary
+    by half the descriptor's half length; ``rule`` names the one that set the interval."""
+    r = probe.radius_m
+    half = 2.4 * r / R_REF_M
+    grazing = r / math.tan(math.radians(GRAZING_DEG))
+    z_near = probe.z_near_m if np.isfinite(probe.z_near_m) else grazing
+    max_range = max(grazing, z_near + 2.0 * half + r)
+    v = max(probe.speed_mps, 0.05)
+    visible = (max_range - min(z_near, max_range / 2)) / (3.0 * v)
+    points = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS
+    fill = points / max(probe.descriptor_points, 1.0) / probe.scan_rate_hz
+    cap = max(half / (SMEAR_DRIFTS * DRIFT_FRACTION * v), 0.5)
+    interval = min(max(visible, fill, 0.5), cap)
+    rule = (
+        "drift_cap"
+        if interval == cap
+        else "descriptor_fill"
+        if fill > visible
+        else "visible_window"
+    )
+    return {
+        "interval_s": interval,
+        "rule": rule,
+        "visible_window_s": visible,
+        "descriptor_fill_s": fill,
+        "drift_cap_s": cap,
+    }
+
+
 def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
     """The config overrides (on the tunnel preset) for a measured corridor (module docs)."""
     r = probe.radius_m
@@ -346,12 +380,7 @@ def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
     z_near = probe.z_near_m if np.isfinite(probe.z_near_m) else grazing
     max_range = max(grazing, z_near + 2.0 * half + r)
     v = max(probe.speed_mps, 0.05)
-    # Enough scans that a boundary's descriptor is DESCRIPTOR_FILL observed (module docs).
-    points = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS
-    fill = points / max(probe.descriptor_points, 1.0) / probe.scan_rate_hz
-    interval = max((max_range - min(z_near, max_range / 2)) / (3.0 * v), fill, 0.5)
-    # ... but no longer than the drift decod allows for smears a boundary (module docs).
-    interval = min(interval, max(half / (SMEAR_DRIFTS * DRIFT_FRACTION * v), 0.5))
+    interval = _schedule(probe)["interval_s"]
     scans = int(np.clip(round(interval * probe.scan_rate_hz), 5, 40))
     return {
         "submap": {
@@ -406,6 +435,12 @@ def auto_config(probe: CorridorProbe, user_toml: Path | None) -> tuple[Config, d
             for k, v in asdict(probe).items()
         },
         "derived": derived,
+        # Which rule set the anchor interval, and each rule's interval (s).
+        "schedule": {
+            k: round(v, 3) if isinstance(v, float) and math.isfinite(v) else v
+            for k, v in _schedule(probe).items()
+            if k != "interval_s"
+        },
         "corridor": "pipe" if probe.radius_m < 1.0 else "tunnel",
         "user_overrides": None if user_toml is None else str(user_toml),
     }
