@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from decod_rs.commands.run import print_setup
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -89,7 +90,7 @@ def test_auto_configuration_closes_loops_where_the_presets_did_not(
     ],
 )
 def test_auto_configuration_gives_the_aliased_pipe_no_loop(
-    seed: int, world_seed: int | None, tmp_path: Path
+    seed: int, world_seed: int | None, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # Every joint identical: any accepted loop would be a guess.
     sim = tmp_path / "sim"
@@ -104,6 +105,12 @@ def test_auto_configuration_gives_the_aliased_pipe_no_loop(
         progress=False,
     )
     result, report = _run(sim, tmp_path / "run")
+    # decod run's summary says what auto chose and why there is no loop.
+    print_setup(tmp_path / "run")
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("auto           pipe, radius 0."), lines
+    assert "; set by the " in lines[0], lines
+    assert lines[1] == f"no loop        {report['no_loop_reason']}", lines
     assert result["loops"]["fine"]["accepted"] == 0, report["query_rejections"]
     assert result["loops"]["coarse"]["false_positives"] == 0, report["query_rejections"]
     assert report["query_rejections"].get("not_unique", 0) > 0

@@ -139,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         survey=args.survey,
     )
     print_summary(summary)
+    print_setup(args.out)
     print_joints(args.out)
     print_within_passes(args.out)
     print_unmeasured(args.out)
@@ -147,6 +148,24 @@ def run(args: argparse.Namespace) -> int:
     if args.map:
         print_map(args.out)
     return 0
+
+
+def print_setup(out: Path) -> None:
+    """What ``auto`` measured and chose (``report.json`` ``auto``), in one line, and why no
+    loop was closed when none was (``no_loop_reason``)."""
+    report = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    auto = report.get("auto")
+    if auto:
+        submap, schedule = auto["derived"]["submap"], auto.get("schedule") or {}
+        rule = str(schedule.get("rule", "")).replace("_", " ")
+        print(
+            f"auto           {auto['corridor']}, radius {auto['measured']['radius_m']:.2f} m, "
+            f"voxel {1e3 * submap['voxel_m']:.1f} mm, range {submap['min_range_m']:.2f}-"
+            f"{submap['max_range_m']:.2f} m, a submap every {submap['interval_s']:.2f} s "
+            f"({submap['scans_per_submap']} scans{'; set by the ' + rule if rule else ''})"
+        )
+    if report.get("no_loop_reason"):
+        print(f"no loop        {report['no_loop_reason']}")
 
 
 def print_joints(out: Path) -> None:
