@@ -271,6 +271,9 @@ def test_auto_schedule_keeps_a_window_shorter_than_the_drift_smears() -> None:
     # report.json says which rule set the interval.
     assert auto_config(probe, None)[1]["schedule"]["rule"] == "drift_cap"
     assert auto_config(level, None)[1]["schedule"]["rule"] == "descriptor_fill"
+    fast = replace(_probe(0.2, 0.55, 2.0), descriptor_points=5000.0)  # 0.1 s would do
+    assert auto_config(fast, None)[1]["schedule"]["rule"] == "minimum"
+    assert derive(fast)["submap"]["interval_s"] == 0.5
 
 
 def test_auto_report_is_strict_json_when_a_distance_was_never_sampled() -> None:

@@ -339,29 +339,36 @@ def probe_corridor(
     return replace(probe, descriptor_points=_descriptor_points(windows, probed, probe)), imu
 
 
+def _reach(probe: CorridorProbe) -> tuple[float, float, float]:
+    """The descriptor's half length, ``z_near`` (where the whole ring is first sampled, or
+    where the wall is seen at ``GRAZING_DEG`` when it never is) and the range window's far
+    end (m; module docs, range window)."""
+    r = probe.radius_m
+    half = 2.4 * (r / R_REF_M)
+    grazing = r / math.tan(math.radians(GRAZING_DEG))
+    z_near = probe.z_near_m if np.isfinite(probe.z_near_m) else grazing
+    return half, z_near, max(grazing, z_near + 2.0 * half + r)
+
+
 def _schedule(probe: CorridorProbe) -> dict[str, Any]:
     """The anchor interval (s) and the three rules behind it (module docs, schedule): an
     anchor every third of the visible window of travel, at least the time that fills a
     descriptor, at most the time over which the drift decod allows for smears a boundary
-    by half the descriptor's half length; ``rule`` names the one that set the interval."""
-    r = probe.radius_m
-    half = 2.4 * r / R_REF_M
-    grazing = r / math.tan(math.radians(GRAZING_DEG))
-    z_near = probe.z_near_m if np.isfinite(probe.z_near_m) else grazing
-    max_range = max(grazing, z_near + 2.0 * half + r)
+    by half the descriptor's half length; ``rule`` names the one that set the interval
+    (``minimum``: 0.5 s, when both the window and the fill ask for less)."""
+    half, z_near, max_range = _reach(probe)
     v = max(probe.speed_mps, 0.05)
     visible = (max_range - min(z_near, max_range / 2)) / (3.0 * v)
     points = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS
     fill = points / max(probe.descriptor_points, 1.0) / probe.scan_rate_hz
     cap = max(half / (SMEAR_DRIFTS * DRIFT_FRACTION * v), 0.5)
     interval = min(max(visible, fill, 0.5), cap)
-    rule = (
-        "drift_cap"
-        if interval == cap
-        else "descriptor_fill"
-        if fill > visible
-        else "visible_window"
-    )
+    if max(visible, fill) <= 0.5:
+        rule = "minimum"
+    elif interval == cap:
+        rule = "drift_cap"
+    else:
+        rule = "descriptor_fill" if fill > visible else "visible_window"
     return {
         "interval_s": interval,
         "rule": rule,
@@ -375,10 +382,7 @@ def derive(probe: CorridorProbe) -> dict[str, dict[str, Any]]:
     """The config overrides (on the tunnel preset) for a measured corridor (module docs)."""
     r = probe.radius_m
     k = r / R_REF_M
-    half = 2.4 * k
-    grazing = r / math.tan(math.radians(GRAZING_DEG))
-    z_near = probe.z_near_m if np.isfinite(probe.z_near_m) else grazing
-    max_range = max(grazing, z_near + 2.0 * half + r)
+    half, _, max_range = _reach(probe)
     v = max(probe.speed_mps, 0.05)
     interval = _schedule(probe)["interval_s"]
     scans = int(np.clip(round(interval * probe.scan_rate_hz), 5, 40))
