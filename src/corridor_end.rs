@@ -258,6 +258,14 @@ mod tests {
 
     /// A tunnel of radius `r` along +x from the sensor to an end face at `end` m: wall points
     /// every 5 cm in x and 1 degree round, face points on a 5 cm grid inside the section.
+    /// The same 3 m tunnel up to just short of its end face: no face in view.
+    fn open_tunnel() -> Vec<[f32; 3]> {
+        tunnel_with_end(3.0, 8.0)
+            .into_iter()
+            .filter(|p| p[0] < 7.9)
+            .collect()
+    }
+
     fn tunnel_with_end(r: f64, end: f64) -> Vec<[f32; 3]> {
         let mut pts = Vec::new();
         let mut x = 1.0;
@@ -296,20 +304,14 @@ mod tests {
 
     #[test]
     fn a_corridor_without_an_end_is_left_alone() {
-        let pts: Vec<[f32; 3]> = tunnel_with_end(3.0, 8.0)
-            .into_iter()
-            .filter(|p| p[0] < 7.9)
-            .collect();
+        let pts = open_tunnel();
         assert!(trim_end_face(&pts, [1.0, 0.0, 0.0], 0.3).is_none());
     }
 
     #[test]
     fn a_dense_slab_that_is_not_planar_is_not_a_face() {
         // A cube of points in the middle of the corridor: dense, but not a plane.
-        let mut pts: Vec<[f32; 3]> = tunnel_with_end(3.0, 8.0)
-            .into_iter()
-            .filter(|p| p[0] < 7.9)
-            .collect();
+        let mut pts = open_tunnel();
         let n = pts.len();
         for k in 0..n {
             let f = |m: f64| (k as f64 * m).fract() - 0.5;
@@ -392,10 +394,7 @@ mod tests {
 
     #[test]
     fn no_face_in_an_open_corridor_or_in_degenerate_input() {
-        let open: Vec<[f32; 3]> = tunnel_with_end(3.0, 8.0)
-            .into_iter()
-            .filter(|p| p[0] < 7.9)
-            .collect();
+        let open = open_tunnel();
         for settled in [true, false] {
             assert!(face_in_view(&open, [1.0, 0.0, 0.0], settled, 0.3).is_none());
             assert!(face_in_view(&[], [1.0, 0.0, 0.0], settled, 0.3).is_none());
