@@ -794,3 +794,39 @@ def test_convert_livox_ros1_bag(tmp_path):
     (scan,) = list(decod_rs.read_log(tmp_path / "out", odom_tum=tum))
     np.testing.assert_array_equal(scan.points, pts)
     np.testing.assert_allclose(scan.pose[:3, 3], [1.0, 0.0, 0.0], atol=1e-12)
+
+
+@pytest.mark.parametrize("outside", [False, True])
+def test_auto_probe_keeps_the_windows_of_the_scans_that_pair_with_odometry(tmp_path, outside):
+    """The auto probe keeps only its windows' scans; they are the windows it would cut from
+    every scan read, also when clouds outside the odometry make the log announce more scans
+    than pair (it plans on the announced count, then reads again with the real one)."""
+    from decod_rs.autoscale import PROBE_SCANS, _probe_starts, _read_probe_scans
+
+    store = ros2_store()
+    fields, step, big = LAYOUTS["xyz_f32_intensity"]
+    stamps = [0.05 + 0.07 * k for k in range(27)] + ([-0.5, -0.3, 2.5, 2.7] if outside else [])
+    msgs = odometry_messages(store)
+    for t in stamps:
+        data, width, row_step = cloud_bytes(random_points(5), fields, step, big)
+        msgs.append(
+            (
+                "/points",
+                t + 10 if t < 0 else t,
+                ros2_cloud(store, t, data, fields, step, big, width, 1, row_step),
+            )
+        )
+    log = write_ros2(tmp_path / "bag", store, ROS2_TOPICS, msgs)
+    every = list(decod_rs.read_log(log))
+    assert len(every) == 27 and decod_rs.read_log(log).total_scans_hint == len(stamps)
+
+    windows, read, odometry, imu = _read_probe_scans(log, None, None, None, None)
+
+    np.testing.assert_array_equal(read, [s.stamp for s in every])
+    expected = [every[s : s + PROBE_SCANS] for s in _probe_starts(len(every))]
+    assert len(windows) == len(expected) == 4
+    for got, want in zip(windows, expected, strict=True):
+        assert [s.stamp for s in got] == [s.stamp for s in want]
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a.points, b.points)
+    assert odometry.shape == (len(ODOM_STAMPS), 8) and imu is None

@@ -97,7 +97,7 @@ from numpy.typing import NDArray
 from decod_rs import _core
 from decod_rs.config import Config
 from decod_rs.ingest import LogWarning
-from decod_rs.io import read_log
+from decod_rs.io import ScanReader, read_log
 
 FloatArray = NDArray[np.float64]
 
@@ -220,28 +220,54 @@ def _probe_windows(windows: list[list[Any]], cfg: str) -> list[tuple[Any, Any]]:
         return list(pool.map(one, windows))
 
 
+def _probe_starts(count: int) -> list[int]:
+    """The first scan of each probe window among ``count`` scans (windows spread evenly)."""
+    starts = np.linspace(0, count - PROBE_SCANS, PROBE_COUNT).astype(int)
+    return sorted(set(starts.tolist()))
+
+
 def _read_probe_scans(
     log: Path,
     points_topic: str | None,
     odom_topic: str | None,
     odom_tum: Path | None,
     imu_topic: str | None,
-) -> tuple[list[Any], FloatArray, FloatArray | None]:
-    """The first PROBE_MAX_SCANS scans of ``log``, its odometry and its IMU samples."""
+) -> tuple[list[list[Any]], FloatArray, FloatArray, FloatArray | None]:
+    """The probe windows among the first PROBE_MAX_SCANS scans of ``log`` (:func:`_probe_starts`
+    of their count), the stamps of all those scans, the log's odometry and its IMU samples.
+
+    Only the windows' scans are kept (40 of 300: a 64-beam log's probe held 160 MB of points
+    for the 300). The windows are planned on the count the log announces; when fewer scans
+    pair with the odometry than that, the log is read once more with the count it gave."""
     reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic)
-    scans = []
+    planned = min(PROBE_MAX_SCANS, max(int(reader.total_scans_hint), PROBE_SCANS))
+    windows, stamps = _read_windows(reader, _probe_starts(planned))
+    if len(stamps) < PROBE_SCANS:
+        raise ValueError(
+            f"{log}: auto configuration needs >= {PROBE_SCANS} scans, got {len(stamps)}"
+        )
+    if len(stamps) != planned:  # scans left out (outside the odometry, in a gap): plan again
+        reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic)
+        windows, stamps = _read_windows(reader, _probe_starts(len(stamps)))
+    return windows, stamps, reader.odometry(), reader.imu_samples()
+
+
+def _read_windows(reader: ScanReader, starts: list[int]) -> tuple[list[list[Any]], FloatArray]:
+    """The windows of PROBE_SCANS scans at ``starts`` (scan indices) and the stamps of every
+    scan read, at most PROBE_MAX_SCANS."""
+    windows: list[list[Any]] = [[] for _ in starts]
+    stamps = []
     with warnings.catch_warnings():
         # A damaged log is reported once, by the run that follows (decod_rs.ingest).
         warnings.simplefilter("ignore", LogWarning)
         for k, rec in enumerate(reader):
-            scans.append(rec)
+            stamps.append(rec.stamp)
+            for start, window in zip(starts, windows, strict=True):
+                if start <= k < start + PROBE_SCANS:  # windows overlap in a short log
+                    window.append(rec)
             if k + 1 >= PROBE_MAX_SCANS:
                 break
-    if len(scans) < PROBE_SCANS:
-        raise ValueError(
-            f"{log}: auto configuration needs >= {PROBE_SCANS} scans, got {len(scans)}"
-        )
-    return scans, reader.odometry(), reader.imu_samples()
+    return windows, np.asarray(stamps, dtype=np.float64)
 
 
 def _relief(windows: list[list[Any]], probe: CorridorProbe) -> float:
@@ -300,12 +326,12 @@ def probe_corridor(
     """Measure the corridor from the first scans of ``log`` (module docs, steps 1-4). Also
     returns the IMU samples the probe's pass over the log read (``None`` without an IMU):
     the run's processor takes them instead of reading the whole file for them again."""
-    scans, odometry, imu = _read_probe_scans(log, points_topic, odom_topic, odom_tum, imu_topic)
+    candidates, stamps, odometry, imu = _read_probe_scans(
+        log, points_topic, odom_topic, odom_tum, imu_topic
+    )
     cfg = _probe_config()
-    starts = np.linspace(0, len(scans) - PROBE_SCANS, PROBE_COUNT).astype(int)
     radii, nears, windows = [], [], []
     probed: list[tuple[Any, FloatArray]] = []  # each kept window's submap and axis
-    candidates = [scans[s : s + PROBE_SCANS] for s in sorted(set(starts.tolist()))]
     for window, (submap, result) in zip(candidates, _probe_windows(candidates, cfg), strict=True):
         d = result.diagnostics
         r = d.contour_radius_m
@@ -323,9 +349,8 @@ def probe_corridor(
     if not radii:
         raise ValueError(
             f"{log}: auto configuration found no corridor cross-section in the first "
-            f"{len(scans)} scans; pass --preset pipe|tunnel or --config"
+            f"{len(stamps)} scans; pass --preset pipe|tunnel or --config"
         )
-    stamps = np.array([s.stamp for s in scans])
     rate = float(1.0 / np.median(np.diff(stamps))) if stamps.size > 1 else 10.0
     finite = [z for z in nears if np.isfinite(z)]
     probe = CorridorProbe(
