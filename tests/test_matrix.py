@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 from decod_rs.bench.detection_bias import band_labels, format_section, view_bias
 from decod_rs.bench.matrix import (
     MAX_FULL_RING_M,
+    OVERLONG,
     QUICK,
     SYMMETRIC,
     UNEVEN,
@@ -21,6 +23,7 @@ from decod_rs.bench.matrix import (
     full_ring_distance_m,
     joint_coverage,
     loop_summary,
+    profile_odometry,
     registry_chainage_errors,
     ring_distance_for,
     sees_walls,
@@ -115,6 +118,36 @@ def test_the_fresh_tier_is_held_out_and_outside_the_full_tier() -> None:
         keys |= {(c.scene, "mount", c.mount_deg)} if c.mount_deg != (0.0, 0.0) else set()
         assert keys and not keys & full_keys, c.name
     assert [c.name for c in tier_cells("fresh", "d0.8")] == ["pe-spin16-reverse-s7-d0.8"]
+    assert all(c.profiles == (SYMMETRIC, UNEVEN, OVERLONG) for c in fresh)
+
+
+@pytest.mark.parametrize(("profile", "scales"), [(UNEVEN, (0.95, 0.85)), (OVERLONG, (1.05, 1.15))])
+def test_leg_profiles_scale_each_leg_of_the_odometry(tmp_path, profile, scales) -> None:
+    """``uneven`` and ``overlong`` odometry, made from a cell's ground truth: each leg's
+    travel is the true one times the profile's scale (the axial random walk of the drift
+    model, 1 cm/sqrt(m), is far inside 1 %)."""
+    from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
+    from decod_rs.tum import read_tum, write_tum
+
+    spec = TrajectorySpec(x_start_m=0.5, length_m=20.0, speed_mps=1.0, return_mode="reverse")
+    traj = Trajectory(spec, np.random.default_rng(0))
+    stamps = np.arange(0.0, traj.duration_s, 0.1)
+    split = int(np.argmax(traj.travelled(stamps) >= traj.travelled(traj.t_far_arrive)))
+    sim = tmp_path / "sim"
+    sim.mkdir()
+    write_tum(sim / "gt.tum", stamps, traj.poses(stamps))
+    meta = {"trajectory": spec.as_dict(), "time_split": {"outbound_scans": [0, split]}}
+    (sim / "joints.json").write_text(json.dumps(meta), encoding="utf-8")
+    cell = tier_cells("fresh")[0]
+
+    _, odom = read_tum(profile_odometry(cell, sim, profile, tmp_path / "odom.tum"))
+
+    x = odom[:, 0, 3]
+    out, back = x[split] - x[0], x[split] - x[-1]
+    true_out = traj.axial(stamps[split]) - traj.axial(stamps[0])
+    true_back = traj.axial(stamps[split]) - traj.axial(stamps[-1])
+    assert out / true_out == pytest.approx(scales[0], abs=0.01)
+    assert back / true_back == pytest.approx(scales[1], abs=0.01)
 
 
 def test_full_ring_distance_follows_the_field_of_view() -> None:

@@ -33,8 +33,10 @@ width variants the spinning sensors of the 9 m shield (``spin64`` from 14.3 m) a
 **Drift profiles** per cell (:mod:`decod_rs.sim.drift`): ``symmetric`` = the endpoint model
 with an endpoint error of 3 % of the one-way length (the log's own ``/odom``); ``uneven`` =
 ``legs:-0.05,-0.15`` (outbound 95 % of the distance, return 85 %), made from ground truth
-without re-simulating; ``kiss-icp`` (``--kiss``, only if ``import kiss_icp`` works) = KISS-ICP
-run on the log's scans, reported only where it tracks (max lateral error below the radius).
+without re-simulating; in the fresh tier also ``overlong`` = ``legs:0.05,0.15`` (odometry
+reading long, as slipping wheels do: outbound 105 %, return 115 %); ``kiss-icp``
+(``--kiss``, only if ``import kiss_icp`` works) = KISS-ICP run on the log's scans, reported
+only where it tracks (max lateral error below the radius).
 Each profile's odometry is written as a TUM file and passed to ``run_log(odom_tum=...)``
 with ``run_log``'s default preset (what a user gets), or ``--preset P`` for every cell
 (``--preset scene``: ``pipe`` in pipes, ``tunnel`` in tunnels).
@@ -110,6 +112,12 @@ SYMMETRIC = "symmetric"
 UNEVEN = "uneven"
 KISS = "kiss-icp"
 UNEVEN_PROFILE = "legs:-0.05,-0.15"
+#: Odometry that reads long on both legs (wheel odometry that slips: the wheels turn more
+#: than the robot moves), the other sign of ``uneven``; fresh tier only.
+OVERLONG = "overlong"
+OVERLONG_PROFILE = "legs:0.05,0.15"
+#: Drift profiles made from ground truth, per leg: name -> (profile, the seed's salt).
+LEG_PROFILES = {UNEVEN: (UNEVEN_PROFILE, 1), OVERLONG: (OVERLONG_PROFILE, 2)}
 SYMMETRIC_ENDPOINT_FRACTION = 0.03
 FINE_TOLERANCE_M = 0.3
 #: A joint is seen on a pass if a landmark of that pass lies within this of it (m).
@@ -216,6 +224,7 @@ def _fresh(
         held_out=True,
         variant=variant,
         mount_deg=mount_deg,
+        profiles=(SYMMETRIC, UNEVEN, OVERLONG),
     )
 
 
@@ -567,9 +576,9 @@ def format_markdown(rows: Sequence[dict[str, Any]], meta: dict[str, Any]) -> str
         f"{len({r['cell'] for r in rows})} cells, {len(rows)} rows, "
         f"{meta.get('elapsed_s', 0.0) / 60.0:.1f} min. Drift: symmetric = endpoint model at "
         f"{100 * SYMMETRIC_ENDPOINT_FRACTION:.0f} % of the one-way length; uneven = "
-        f"{UNEVEN_PROFILE}. 'far-end axial %' = axial error at the far end in % of the "
-        "outbound distance (odometry → corrected); coverage = joints closed / seen on both "
-        "passes.",
+        f"{UNEVEN_PROFILE}; overlong (fresh tier) = {OVERLONG_PROFILE}. 'far-end axial %' = "
+        "axial error at the far end in % of the outbound distance (odometry → corrected); "
+        "coverage = joints closed / seen on both passes.",
         "",
         "## Tuned cells",
         "",
@@ -672,13 +681,14 @@ def profile_odometry(cell: Cell, sim_dir: Path, profile: str, dest: Path) -> Pat
     meta = json.loads((sim_dir / "joints.json").read_text(encoding="utf-8"))
     if profile == SYMMETRIC:
         shutil.copyfile(sim_dir / "odom.tum", dest)
-    elif profile == UNEVEN:
+    elif profile in LEG_PROFILES:
         stamps, gt = read_tum(sim_dir / "gt.tum")
+        legs, salt = LEG_PROFILES[profile]
         dr = odometry_for_profile(
             gt,
             _travelled(meta, stamps),
-            UNEVEN_PROFILE,
-            np.random.default_rng([cell.seed, 3, 1]),
+            legs,
+            np.random.default_rng([cell.seed, 3, salt]),
             split_index=int(meta["time_split"]["outbound_scans"][1]),
         )
         write_tum(dest, stamps, dr.odom_poses)
