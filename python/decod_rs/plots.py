@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 from matplotlib.ticker import FuncFormatter, NullFormatter
 from numpy.typing import ArrayLike, NDArray
@@ -102,34 +103,7 @@ def plot_trajectories(
         top.plot(xyz[:, 0], xyz[:, 1], style, color=_COLOURS[name], label=name, lw=1.2)
         along.plot(s - t0, xyz @ axis, style, color=_COLOURS[name], label=name, lw=1.2)
     for name in ("odometry", "corrected"):
-        s, p = series[name]
-        usable = [(q, d) for q, d in loops if s[0] <= min(q, d) and max(q, d) <= s[-1]]
-        if not usable:
-            continue
-        q_st = np.array([q for q, _ in usable])
-        d_st = np.array([d for _, d in usable])
-        pq = interpolate_poses(s, p, q_st)[:, :3, 3]
-        pd = interpolate_poses(s, p, d_st)[:, :3, 3]
-        # One collection per panel, not one line per loop: a 64-beam run keeps 200+ loops,
-        # and 800 line artists took 2.6-3.5 s to draw (and to place the legend around).
-        segments = {
-            top: np.stack([pq[:, :2], pd[:, :2]], axis=1),
-            along: np.stack(
-                [np.column_stack([q_st - t0, pq @ axis]), np.column_stack([d_st - t0, pd @ axis])],
-                axis=1,
-            ),
-        }
-        for ax, lines in segments.items():
-            ax.add_collection(
-                LineCollection(
-                    list(lines),
-                    colors=_COLOURS[name],
-                    linewidths=0.6,
-                    linestyles=":",
-                    alpha=0.6,
-                    label=f"loops ({name})",
-                )
-            )
+        _draw_loops(top, along, *series[name], loops, name, (axis, t0))
     top.set_xlabel("x [m]")
     top.set_ylabel("y [m]")
     top.set_title("top view")
@@ -149,6 +123,48 @@ def plot_trajectories(
     along.grid(alpha=0.3)
     along.legend(loc="best", fontsize=8)
     return _save(fig, path, tight=False)
+
+
+def _draw_loops(
+    top: Axes,
+    along: Axes,
+    s: FloatArray,
+    p: FloatArray,
+    loops: Sequence[tuple[float, float]],
+    name: str,
+    frame: tuple[FloatArray, float],
+) -> None:
+    """The loops within the span of trajectory ``name`` (stamps ``s``, poses ``p``) as dotted
+    segments between the two positions, on the top view and along the axis (``frame``: the
+    main axis and the time origin)."""
+    axis, t0 = frame
+    usable = [(q, d) for q, d in loops if s[0] <= min(q, d) and max(q, d) <= s[-1]]
+    if not usable:
+        return
+    q_st = np.array([q for q, _ in usable])
+    d_st = np.array([d for _, d in usable])
+    pq = interpolate_poses(s, p, q_st)[:, :3, 3]
+    pd = interpolate_poses(s, p, d_st)[:, :3, 3]
+    # One collection per panel, not one line per loop: a 64-beam run keeps 200+ loops,
+    # and 800 line artists took 2.6-3.5 s to draw (and to place the legend around).
+    segments = {
+        top: np.stack([pq[:, :2], pd[:, :2]], axis=1),
+        along: np.stack(
+            [np.column_stack([q_st - t0, pq @ axis]), np.column_stack([d_st - t0, pd @ axis])],
+            axis=1,
+        ),
+    }
+    for ax, lines in segments.items():
+        ax.add_collection(
+            LineCollection(
+                list(lines),
+                colors=_COLOURS[name],
+                linewidths=0.6,
+                linestyles=":",
+                alpha=0.6,
+                label=f"loops ({name})",
+            )
+        )
 
 
 def plot_error_over_time(

@@ -21,7 +21,7 @@ from decod_rs.sim.imu import ImuSamples, ImuSpec, simulate_imu
 from decod_rs.sim.lio import KissOdometry
 from decod_rs.sim.livox import Ros1Writer
 from decod_rs.sim.raycast import cast
-from decod_rs.sim.scenes import build_scene, defaults_for, scene_params
+from decod_rs.sim.scenes import SceneDefaults, build_scene, defaults_for, scene_params
 from decod_rs.sim.sensors import SCAN_PERIOD_S, SensorSpec, measure, ray_directions, sensor_spec
 from decod_rs.sim.surface import Scene
 from decod_rs.sim.trajectory import Trajectory, TrajectorySpec, so3_log
@@ -83,25 +83,8 @@ class Simulation:
         self.distinctiveness = 1.0 if distinctiveness is None else float(distinctiveness)
         self.identical_joints = bool(identical_joints)
         length = defaults.length_m if length_m is None else float(length_m)
-        roll, pitch = _mount(mount_deg)
         speed = defaults.speed_mps if speed_mps is None else float(speed_mps)
-        if not (np.isfinite(length) and length > 0):
-            raise ValueError(f"length_m must be > 0, got {length}")
-        self.traj_spec = TrajectorySpec(
-            x_start_m=defaults.x_start_m,
-            length_m=length,
-            speed_mps=speed,
-            return_mode=return_mode or defaults.return_mode,
-            z0_m=defaults.z0_m,
-            lateral_m=defaults.lateral_m,
-            vertical_m=defaults.vertical_m,
-            roll_rad=defaults.roll_rad,
-            pitch_rad=defaults.pitch_rad,
-            yaw_rad=defaults.yaw_rad,
-            wobble_wavelength_m=defaults.wobble_wavelength_m,
-            mount_roll_rad=float(np.radians(roll)),
-            mount_pitch_rad=float(np.radians(pitch)),
-        )
+        self.traj_spec = _trajectory_spec(defaults, length, speed, return_mode, mount_deg)
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
         self.scene: Scene = build_scene(
@@ -514,6 +497,35 @@ def _sim_result(
         time_scans_s=stream.t_scans,
         time_write_s=total - t_setup - stream.t_scans - stream.t_odom,
         time_odometry_s=stream.t_odom,
+    )
+
+
+def _trajectory_spec(
+    defaults: SceneDefaults,
+    length: float,
+    speed: float,
+    return_mode: str | None,
+    mount_deg: tuple[float, float],
+) -> TrajectorySpec:
+    """The run's trajectory: the scene's ``defaults`` (:func:`defaults_for`) with the length,
+    speed, return mode (None: the scene's) and sensor mount asked for."""
+    if not (np.isfinite(length) and length > 0):
+        raise ValueError(f"length_m must be > 0, got {length}")
+    roll, pitch = _mount(mount_deg)
+    return TrajectorySpec(
+        x_start_m=defaults.x_start_m,
+        length_m=length,
+        speed_mps=speed,
+        return_mode=return_mode or defaults.return_mode,
+        z0_m=defaults.z0_m,
+        lateral_m=defaults.lateral_m,
+        vertical_m=defaults.vertical_m,
+        roll_rad=defaults.roll_rad,
+        pitch_rad=defaults.pitch_rad,
+        yaw_rad=defaults.yaw_rad,
+        wobble_wavelength_m=defaults.wobble_wavelength_m,
+        mount_roll_rad=float(np.radians(roll)),
+        mount_pitch_rad=float(np.radians(pitch)),
     )
 
 
