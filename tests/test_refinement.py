@@ -137,7 +137,9 @@ def test_a_rebuilt_round_tracks_boundaries_in_the_corrected_frame(tmp_path: Path
     assert result["loops"]["coarse"]["false_positives"] == 0
 
 
-def test_a_second_rebuild_takes_the_rib_pattern_out_of_the_joint_registry(tmp_path: Path) -> None:
+def test_a_second_rebuild_takes_the_rib_pattern_out_of_the_joint_registry(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     # A ribbed PE pipe (ribs every 3.5 cm, 1.2 mm high) seen by 16 beams, the return's
     # odometry 15 % short. Stitched 15 % short, a submap's ribs from different scans fall
     # out of step and the profile shows steps the detector takes for boundaries. The first
@@ -155,6 +157,15 @@ def test_a_second_rebuild_takes_the_rib_pattern_out_of_the_joint_registry(tmp_pa
     sim, out, report = _uneven_run(tmp_path, "pe", 25, "spin16", "turn", 0.3)
     rounds = report["rebuild"]["rounds"]
     assert report["rebuild"]["rebuilds"] == 2 and all(r["kept"] for r in rounds), rounds
+    # decod run's summary says so, round by round, with the loops before and after.
+    from decod_rs.commands.run import print_rebuild
+
+    print_rebuild(out)
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("rebuilt        round 1 (the correction moves a submap's travel by ")
+    (first, second) = [(r["loops_first_and_rebuilt"], r["kept"]) for r in rounds]
+    assert f"loops {first[0][0]} -> {first[0][1]}, kept; round 2 (" in line, line
+    assert line.endswith(f"loops {second[0][0]} -> {second[0][1]}, kept"), line
     result, _ = evaluate_run(out, sim / "gt.tum", sim / "joints.json")
     fine, coarse = result["loops"]["fine"], result["loops"]["coarse"]
     assert fine["accepted"] >= 3 and fine["false_positives"] == 0, fine

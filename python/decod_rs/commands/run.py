@@ -140,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     )
     print_summary(summary)
     print_setup(args.out)
+    print_rebuild(args.out)
     print_joints(args.out)
     print_within_passes(args.out)
     print_unmeasured(args.out)
@@ -166,6 +167,31 @@ def print_setup(out: Path) -> None:
         )
     if report.get("no_loop_reason"):
         print(f"no loop        {report['no_loop_reason']}")
+
+
+def print_rebuild(out: Path) -> None:
+    """Whether the submaps were built again on the corrected trajectory (``report.json``
+    ``rebuild``, :mod:`decod_rs.refinement`), round by round: why, the loops before and
+    after, and whether the rebuilt submaps were kept. Nothing when no round ran (no loop)."""
+    section = json.loads((out / "report.json").read_text(encoding="utf-8")).get("rebuild")
+    if not section:
+        return
+
+    def cm(metres: float) -> str:
+        return f"{100 * metres:.1f} cm"
+
+    parts = []
+    for k, r in enumerate(section["rounds"], 1):
+        moved, limit = cm(r["travel_disagreement_m"]), cm(r["threshold_m"])
+        if not r["rebuilt"]:
+            why = f"the correction moves a submap's travel by {moved} <= {limit}"
+            parts.append(f"{'no' if k == 1 else 'no more'} ({why})")
+            break
+        before, after = r["loops_first_and_rebuilt"]
+        verdict = "kept" if r["kept"] else "not kept"
+        why = f"the correction moves a submap's travel by {moved} > {limit}"
+        parts.append(f"round {k} ({why}): loops {before} -> {after}, {verdict}")
+    print(f"rebuilt        {'; '.join(parts)}")
 
 
 def print_joints(out: Path) -> None:

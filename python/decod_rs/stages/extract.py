@@ -93,7 +93,9 @@ def extract(
     progress: bool,
     keep_map: bool = False,
     imu_samples: FloatArray | None = None,
+    label: str = "extract",
 ) -> tuple[_core.LogProcessor, SubmapLandmarks]:
+    """The log streamed into submaps and landmarks (``label``: the progress bar's name)."""
     processor = _core.LogProcessor(
         str(log),
         json.dumps(cfg.to_dict()),
@@ -104,7 +106,7 @@ def extract(
         map=keep_map,
         imu_samples=imu_samples,
     )
-    bar = Progress("extract", processor.total_scans_hint or None, enabled=progress)
+    bar = Progress(label, processor.total_scans_hint or None, enabled=progress)
     out = SubmapLandmarks()
     read = 0
     while (batch := processor.step()) is not None:

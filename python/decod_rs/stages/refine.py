@@ -34,7 +34,17 @@ def rebuild(
         # then read once, for its scans (not once more for the IMU).
         imu = extraction.processor.imu_samples()
         topic = extraction.imu_topic if imu is None else None
-        _, ex = extract(extraction.log, cfg, points, None, tum, topic, progress, imu_samples=imu)
+        _, ex = extract(
+            extraction.log,
+            cfg,
+            points,
+            None,
+            tum,
+            topic,
+            progress,
+            imu_samples=imu,
+            label="rebuild",
+        )
     anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
     ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
     return ex
