@@ -12,6 +12,7 @@ from contextlib import contextmanager
 from typing import TextIO
 
 from decod_rs import __version__
+from decod_rs.allocator import keep_freed_memory
 from decod_rs.ingest import LogWarning
 
 # Module names under decod_rs.commands, in the order `decod --help` lists them.
@@ -69,6 +70,7 @@ def _plain_log_warnings(command: str) -> Iterator[None]:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    keep_freed_memory()  # the process is decod's: the allocator tuned for it (allocator.py)
     try:
         with _plain_log_warnings(args.command):
             return int(args.func(args) or 0)

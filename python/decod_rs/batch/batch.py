@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from decod_rs.allocator import keep_freed_memory
 from decod_rs.batch.engine import Engine
 from decod_rs.batch.jobs import LogJob
 from decod_rs.batch.summary import (
@@ -119,6 +120,7 @@ def failure(exc: BaseException) -> str:
 def run_one(job: LogJob, run_dir: Path) -> LogOutcome:
     """Run ``job`` into ``run_dir`` (a worker's task). Never raises for a bad log: the
     error goes into the outcome and ``error.txt``."""
+    keep_freed_memory()  # a worker process is decod's (decod_rs.allocator)
     t0 = time.perf_counter()
     try:
         run_log(job.log, run_dir, **job.options.run_kwargs())

@@ -86,6 +86,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from decod_rs.allocator import keep_freed_memory
 from decod_rs.bench.detection_bias import format_section as bias_section
 from decod_rs.bench.detection_bias import view_bias
 from decod_rs.sim.scenes import SCENES, defaults_for, scene_params
@@ -982,6 +983,7 @@ def _failed(row: dict[str, Any], exc: BaseException) -> dict[str, Any]:
 def run_cell(cell: Cell, out: Path, preset: str | None, kiss: bool) -> list[dict[str, Any]]:
     """Simulate the cell (cached) and run every profile on it; one result row per profile,
     also written to ``out/cells/NAME/PROFILE/cell.json``. Exceptions become error rows."""
+    keep_freed_memory()  # as ``decod run`` does (decod_rs.allocator): its x real time
     cell_dir = out / "cells" / cell.name
     used_preset = PRESET_FOR[cell.scene] if preset == "scene" else preset
     profiles = [*cell.profiles, *([KISS] if kiss else [])]
