@@ -172,7 +172,8 @@ def print_setup(out: Path) -> None:
 def print_rebuild(out: Path) -> None:
     """Whether the submaps were built again on the corrected trajectory (``report.json``
     ``rebuild``, :mod:`decod_rs.refinement`), round by round: why, the loops before and
-    after, and whether the rebuilt submaps were kept. Nothing when no round ran (no loop)."""
+    after, and whether the rebuilt submaps were kept. Nothing where a run never rebuilds
+    (``--no-loops``, ``--survey``, ``submap.rebuild_on_correction = false``)."""
     section = json.loads((out / "report.json").read_text(encoding="utf-8")).get("rebuild")
     if not section:
         return
