@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
+import os
 import platform
 import subprocess
 import sys
 
-from decod_rs.allocator import keep_freed_memory
+from decod_rs.allocator import OFF_SWITCH, keep_freed_memory
 
 # In a fresh process (the tuning is process-wide): allocate and free one 64-beam window's
 # rows (20 MB), then report the free bytes glibc's heap keeps and the bytes in mmap blocks.
 PROBE = """
 import ctypes, sys
 from decod_rs.allocator import keep_freed_memory
-applied = keep_freed_memory() if sys.argv[1] == "tuned" else False
+applied = keep_freed_memory() if sys.argv[1] != "default" else False
 class Info(ctypes.Structure):
     _fields_ = [(n, ctypes.c_size_t) for n in (
         "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
@@ -32,9 +33,10 @@ print(int(applied), mapped, libc.mallinfo2().fordblks)
 """
 
 
-def _probe(mode: str) -> tuple[bool, int, int]:
+def _probe(mode: str, off: bool = False) -> tuple[bool, int, int]:
+    env = {**os.environ, OFF_SWITCH: "0" if off else "1"}
     out = subprocess.run(
-        [sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True
+        [sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True, env=env
     ).stdout.split()
     return bool(int(out[0])), int(out[1]), int(out[2])
 
@@ -53,3 +55,6 @@ def test_a_freed_window_stays_in_the_heap_for_the_next_one() -> None:
     # Tuned, it comes from the heap and stays there once freed.
     applied, mapped, kept = _probe("tuned")
     assert applied and mapped < window and kept >= window
+    # DECOD_KEEP_FREED_MEMORY=0 keeps glibc's defaults (python -m decod_rs.bench.allocator).
+    applied, mapped, kept = _probe("tuned", off=True)
+    assert not applied and mapped >= window and kept < window

@@ -19,16 +19,21 @@ Process-wide, so it is called where the process is decod's own: ``decod`` comman
 (:mod:`decod_rs.cli`), the batch workers' tasks and the matrix workers; a program that
 imports ``decod_rs`` decides for itself (call it, or set the ``MALLOC_TRIM_THRESHOLD_`` and
 ``MALLOC_TOP_PAD_`` environment variables). Elsewhere than glibc (macOS, musl) it does
-nothing.
+nothing, and ``DECOD_KEEP_FREED_MEMORY=0`` turns it off (glibc's defaults, for comparison:
+``python -m decod_rs.bench.allocator`` measures both).
 """
 
 from __future__ import annotations
 
 import ctypes
+import os
 import platform
 import sys
 
-__all__ = ["keep_freed_memory"]
+__all__ = ["OFF_SWITCH", "keep_freed_memory"]
+
+#: ``DECOD_KEEP_FREED_MEMORY=0`` leaves glibc's defaults.
+OFF_SWITCH = "DECOD_KEEP_FREED_MEMORY"
 
 #: glibc's ``mallopt`` parameters (``malloc.h``).
 M_TRIM_THRESHOLD = -1
@@ -55,6 +60,8 @@ def keep_freed_memory() -> bool:
 
 
 def _apply() -> bool:
+    if os.environ.get(OFF_SWITCH) == "0":
+        return False
     if sys.platform != "linux" or platform.libc_ver()[0] != "glibc":
         return False
     try:
