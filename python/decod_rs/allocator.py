@@ -26,6 +26,7 @@ nothing, and ``DECOD_KEEP_FREED_MEMORY=0`` turns it off (glibc's defaults, for c
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import platform
 import sys
@@ -47,19 +48,12 @@ NEVER_TRIM = 2**31 - 1
 #: The heap grows by this much at a time.
 TOP_PAD = 256 << 20
 
-_applied: bool | None = None
 
-
+@functools.cache
 def keep_freed_memory() -> bool:
     """Tune glibc's allocator for decod (module docs), once per process; whether it was
-    (False off glibc, or when glibc refused a setting)."""
-    global _applied
-    if _applied is None:
-        _applied = _apply()
-    return _applied
-
-
-def _apply() -> bool:
+    (False off glibc, with ``DECOD_KEEP_FREED_MEMORY=0``, or when glibc refused a
+    setting)."""
     if os.environ.get(OFF_SWITCH) == "0":
         return False
     if sys.platform != "linux" or platform.libc_ver()[0] != "glibc":

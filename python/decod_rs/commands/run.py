@@ -7,7 +7,7 @@ import csv
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from decod_rs.config import MODES, PRESETS
 from decod_rs.recording import require_rerun
@@ -151,10 +151,16 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _report(out: Path) -> dict[str, Any]:
+    """The run's ``report.json``."""
+    report: dict[str, Any] = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    return report
+
+
 def print_setup(out: Path) -> None:
     """What ``auto`` measured and chose (``report.json`` ``auto``), in one line, and why no
     loop was closed when none was (``no_loop_reason``)."""
-    report = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    report = _report(out)
     auto = report.get("auto")
     if auto:
         submap, schedule = auto["derived"]["submap"], auto.get("schedule") or {}
@@ -174,7 +180,7 @@ def print_rebuild(out: Path) -> None:
     ``rebuild``, :mod:`decod_rs.refinement`), round by round: why, the loops before and
     after, and whether the rebuilt submaps were kept. Nothing where a run never rebuilds
     (``--no-loops``, ``--survey``, ``submap.rebuild_on_correction = false``)."""
-    section = json.loads((out / "report.json").read_text(encoding="utf-8")).get("rebuild")
+    section = _report(out).get("rebuild")
     if not section:
         return
 
@@ -213,7 +219,7 @@ def print_joints(out: Path) -> None:
 def print_within_passes(out: Path) -> None:
     """The factors within each pass (``report.json`` ``sequential``): boundaries tracked
     from anchor to anchor, and among them those of an end face in view."""
-    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["sequential"]
+    section = _report(out)["sequential"]
     if section is None:
         print("within passes  none (graph.sequential = false, or --no-loops)")
         return
@@ -226,7 +232,7 @@ def print_within_passes(out: Path) -> None:
 
 def print_unmeasured(out: Path) -> None:
     """The stretches only the odometry places (``report.json`` ``unmeasured``), per pass."""
-    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["unmeasured"]
+    section = _report(out)["unmeasured"]
     names = {"start": "first", "end": "last", "middle": "a gap of", "whole": "all"}
     parts = []
     for name, share in section["share_of_pass"].items():
@@ -239,7 +245,7 @@ def print_unmeasured(out: Path) -> None:
 
 def print_map(out: Path) -> None:
     """The map files and the consistency figure (``report.json`` ``map``)."""
-    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["map"]
+    section = _report(out)["map"]
     figure = section.get("consistency", {})
     before = figure.get("odometry", {}).get("median_overlap_mm")
     after = figure.get("corrected", {}).get("median_overlap_mm")
@@ -253,7 +259,7 @@ def print_map(out: Path) -> None:
 
 def print_survey(out: Path) -> None:
     """The survey stage's outcome (``report.json`` ``survey``)."""
-    section = json.loads((out / "report.json").read_text(encoding="utf-8"))["survey"]
+    section = _report(out)["survey"]
     frame = "survey frame" if section["placed_in_survey_frame"] else "own frame (no pair kept)"
     print(
         f"survey         {section['kept']} of {section['accepted']} accepted cross-session "
