@@ -355,8 +355,9 @@ pub struct MatchingConfig {
     /// then nothing competes with a wrong match: in a pipe with identical joints (six seeds,
     /// 2 and 3 m of drift over 30 m, auto and the pipe preset) 4 of 24 runs kept 6-9 loops
     /// each, all one joint spacing (2.4 m) off; with the rule none (but on four later
-    /// seeds 2 of 16 runs keep wrong loops either way: README, "How decod decides"). In the
-    /// generalisation matrix 16 % of the right loops join two single detections, and two
+    /// seeds 2 of 16 runs keep wrong loops either way: docs/decisions.md, "Single
+    /// detections alone are not enough"). In the generalisation matrix 16 % of the right
+    /// loops join two single detections, and two
     /// runs had nothing else (pe, 16 beams, uneven drift: three right loops each, whose
     /// corrected RMSE was above the odometry's). `false` for ablation. Absent from a stored
     /// config: true.
