@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import decod_rs
-from decod_rs import scenes_analytic as sa
+
+import scenes_analytic as sa
 
 GRAVITY = np.array([0.0, 0.0, -1.0])
 

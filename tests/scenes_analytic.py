@@ -1,4 +1,4 @@
-"""Analytic corridor scenes with known answers (seeded numpy), for tests and the demo.
+"""Analytic corridor scenes with known answers (seeded numpy), for the extraction tests.
 
 Every generator returns points in a local frame where the corridor axis is ``+x``, gravity
 is ``-z`` and the section centre is on the x axis, together with the per-point true offset
