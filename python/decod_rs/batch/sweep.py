@@ -39,7 +39,7 @@ from decod_rs.batch.engine import Engine
 from decod_rs.batch.grid import Setting, extraction_params, params_toml
 from decod_rs.batch.jobs import LogJob
 from decod_rs.batch.replay import extract_log, replay_params, run_from_extraction
-from decod_rs.batch.summary import RUN_COLUMNS, write_csv, write_markdown
+from decod_rs.batch.summary import METRIC_COLUMNS, RUN_COLUMNS, write_csv, write_markdown
 
 SETTING_COLUMNS = (
     "setting",
@@ -49,20 +49,7 @@ SETTING_COLUMNS = (
     "evaluated",
     "queries",
     "accepted",
-    "tp_fine",
-    "accepted_fine",
-    "common_fine",
-    "precision_fine",
-    "recall_fine",
-    "tp_coarse",
-    "accepted_coarse",
-    "common_coarse",
-    "precision_coarse",
-    "recall_coarse",
-    "odom_rmse_m",
-    "corrected_rmse_m",
-    "odom_endpoint_m",
-    "corrected_endpoint_m",
+    *METRIC_COLUMNS,
     "worse_than_odometry",
 )
 RUNS_COLUMNS = ("setting", "params", *RUN_COLUMNS)
