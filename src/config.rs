@@ -357,10 +357,9 @@ pub struct MatchingConfig {
     /// each, all one joint spacing (2.4 m) off; with the rule none (but on four later
     /// seeds 2 of 16 runs keep wrong loops either way: docs/decisions.md, "Single
     /// detections alone are not enough"). In the generalisation matrix 16 % of the right
-    /// loops join two single detections, and two
-    /// runs had nothing else (pe, 16 beams, uneven drift: three right loops each, whose
-    /// corrected RMSE was above the odometry's). `false` for ablation. Absent from a stored
-    /// config: true.
+    /// loops join two single detections, and two runs had nothing else (pe, 16 beams,
+    /// uneven drift: three right loops each, whose corrected RMSE was above the
+    /// odometry's). `false` for ablation. Absent from a stored config: true.
     #[serde(default = "default_require_tracked_loop")]
     pub require_tracked_loop: bool,
     /// Within a run, compare a query with a candidate only under the heading the odometry's
