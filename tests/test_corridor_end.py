@@ -20,7 +20,7 @@ import pytest
 
 from decod_rs import _core
 from decod_rs.bench.matrix import _world_axial
-from decod_rs.commands.run import print_summary, print_within_passes
+from decod_rs.commands.run import print_summary, print_within_passes, read_report
 from decod_rs.evaluate import FINE_TOLERANCE_M, evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -128,7 +128,7 @@ def test_an_end_face_ties_the_last_metres_of_the_return(
     report, trajectory = runs["faces"]
     assert report["sequential"]["end_face_factors"] >= 2, report["sequential"]
     assert runs["no_faces"][0]["sequential"]["end_face_factors"] == 0
-    print_within_passes(tmp_path / "faces")  # what `decod run` prints
+    print_within_passes(read_report(tmp_path / "faces"))  # what `decod run` prints
     faces_line = f"{report['sequential']['end_face_factors']} from an end face in view"
     assert faces_line in capsys.readouterr().out
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from decod_rs.commands.run import print_joints, print_unmeasured
+from decod_rs.commands.run import print_joints, print_unmeasured, read_report
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.run_files import LOOPS_COLUMNS
@@ -102,7 +102,7 @@ def test_disabled_loops_return_the_odometry_unchanged(
     section = json.loads((tmp_path / "report.json").read_text())["unmeasured"]
     assert section["share_of_pass"] == {"outbound": 1.0, "return": 1.0}
     assert [s["where"] for s in section["stretches"]] == ["whole", "whole"]
-    print_unmeasured(tmp_path)
+    print_unmeasured(read_report(tmp_path))
     assert "odometry only  100 % of the outbound (all " in capsys.readouterr().out
 
 

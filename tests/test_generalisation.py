@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from decod_rs.commands.run import print_setup
+from decod_rs.commands.run import print_setup, read_report
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -106,7 +106,7 @@ def test_auto_configuration_gives_the_aliased_pipe_no_loop(
     )
     result, report = _run(sim, tmp_path / "run")
     # decod run's summary says what auto chose and why there is no loop.
-    print_setup(tmp_path / "run")
+    print_setup(read_report(tmp_path / "run"))
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("auto           pipe, radius 0."), lines
     assert "; set by the " in lines[0], lines

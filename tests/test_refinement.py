@@ -158,9 +158,9 @@ def test_a_second_rebuild_takes_the_rib_pattern_out_of_the_joint_registry(
     rounds = report["rebuild"]["rounds"]
     assert report["rebuild"]["rebuilds"] == 2 and all(r["kept"] for r in rounds), rounds
     # decod run's summary says so, round by round, with the loops before and after.
-    from decod_rs.commands.run import print_rebuild
+    from decod_rs.commands.run import print_rebuild, read_report
 
-    print_rebuild(out)
+    print_rebuild(read_report(out))
     line = capsys.readouterr().out.strip()
     assert line.startswith("rebuilt        round 1 (the correction moves a submap's travel by ")
     (first, second) = [(r["loops_first_and_rebuilt"], r["kept"]) for r in rounds]

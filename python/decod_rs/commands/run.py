@@ -139,28 +139,28 @@ def run(args: argparse.Namespace) -> int:
         survey=args.survey,
     )
     print_summary(summary)
-    print_setup(args.out)
-    print_rebuild(args.out)
+    report = read_report(args.out)
+    print_setup(report)
+    print_rebuild(report)
     print_joints(args.out)
-    print_within_passes(args.out)
-    print_unmeasured(args.out)
+    print_within_passes(report)
+    print_unmeasured(report)
     if args.survey is not None:
-        print_survey(args.out)
+        print_survey(report)
     if args.map:
-        print_map(args.out)
+        print_map(report)
     return 0
 
 
-def _report(out: Path) -> dict[str, Any]:
-    """The run's ``report.json``."""
+def read_report(out: Path) -> dict[str, Any]:
+    """The run's ``report.json`` (read once; the summary lines below take it)."""
     report: dict[str, Any] = json.loads((out / "report.json").read_text(encoding="utf-8"))
     return report
 
 
-def print_setup(out: Path) -> None:
+def print_setup(report: dict[str, Any]) -> None:
     """What ``auto`` measured and chose (``report.json`` ``auto``), in one line, and why no
     loop was closed when none was (``no_loop_reason``)."""
-    report = _report(out)
     auto = report.get("auto")
     if auto:
         submap, schedule = auto["derived"]["submap"], auto.get("schedule") or {}
@@ -175,12 +175,12 @@ def print_setup(out: Path) -> None:
         print(f"no loop        {report['no_loop_reason']}")
 
 
-def print_rebuild(out: Path) -> None:
+def print_rebuild(report: dict[str, Any]) -> None:
     """Whether the submaps were built again on the corrected trajectory (``report.json``
     ``rebuild``, :mod:`decod_rs.refinement`), round by round: why, the loops before and
     after, and whether the rebuilt submaps were kept. Nothing where a run never rebuilds
     (``--no-loops``, ``--survey``, ``submap.rebuild_on_correction = false``)."""
-    section = _report(out).get("rebuild")
+    section = report.get("rebuild")
     if not section:
         return
 
@@ -216,10 +216,10 @@ def print_joints(out: Path) -> None:
     )
 
 
-def print_within_passes(out: Path) -> None:
+def print_within_passes(report: dict[str, Any]) -> None:
     """The factors within each pass (``report.json`` ``sequential``): boundaries tracked
     from anchor to anchor, and among them those of an end face in view."""
-    section = _report(out)["sequential"]
+    section = report["sequential"]
     if section is None:
         print("within passes  none (graph.sequential = false, or --no-loops)")
         return
@@ -230,9 +230,9 @@ def print_within_passes(out: Path) -> None:
     )
 
 
-def print_unmeasured(out: Path) -> None:
+def print_unmeasured(report: dict[str, Any]) -> None:
     """The stretches only the odometry places (``report.json`` ``unmeasured``), per pass."""
-    section = _report(out)["unmeasured"]
+    section = report["unmeasured"]
     names = {"start": "first", "end": "last", "middle": "a gap of", "whole": "all"}
     parts = []
     for name, share in section["share_of_pass"].items():
@@ -243,9 +243,9 @@ def print_unmeasured(out: Path) -> None:
     print(f"odometry only  {'; '.join(parts) or 'none: factors reach every stretch'}")
 
 
-def print_map(out: Path) -> None:
+def print_map(report: dict[str, Any]) -> None:
     """The map files and the consistency figure (``report.json`` ``map``)."""
-    section = _report(out)["map"]
+    section = report["map"]
     figure = section.get("consistency", {})
     before = figure.get("odometry", {}).get("median_overlap_mm")
     after = figure.get("corrected", {}).get("median_overlap_mm")
@@ -257,9 +257,9 @@ def print_map(out: Path) -> None:
     print(f"map            {points} points ({section['voxel_m'] * 1e3:.1f} mm voxels); {wall}")
 
 
-def print_survey(out: Path) -> None:
+def print_survey(report: dict[str, Any]) -> None:
     """The survey stage's outcome (``report.json`` ``survey``)."""
-    section = _report(out)["survey"]
+    section = report["survey"]
     frame = "survey frame" if section["placed_in_survey_frame"] else "own frame (no pair kept)"
     print(
         f"survey         {section['kept']} of {section['accepted']} accepted cross-session "
