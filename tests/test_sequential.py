@@ -53,6 +53,9 @@ def test_tracks_correct_the_pass_that_loops_alone_cannot(uneven: Path, tmp_path:
     assert rmse < 0.5 * odo, (rmse, odo, report["sequential"])
     assert report["counts"]["sequential_factors"] > 10
     assert plain["counts"]["sequential_factors"] == 0 and plain["sequential"] is None
+    # A pipe's grooves are seen alike from both sides: no side offset is removed
+    # (decod_rs.side_offset; too few straddling pairs with a forward sensor to measure one).
+    assert report["sequential"]["side_offset"]["applied"] is False
     # The outbound pass keeps its length: far-end error within 1.5 % of the 30 m (the
     # odometry's is 5 %, 1.5 m).
     assert abs(_far_end_error(tmp_path / "seq", uneven)) < 0.015 * 30.0

@@ -66,6 +66,7 @@ from decod_rs._core import Landmark, PairResult
 from decod_rs.end_faces import FaceFactors
 from decod_rs.graph import LoopConstraint
 from decod_rs.matching import PairMemo
+from decod_rs.side_offset import SideOffset, measure_side_offset, without_offset
 from decod_rs.tracks import world_origins
 
 FloatArray = NDArray[np.float64]
@@ -95,6 +96,9 @@ class SequentialFactors:
     #: The factors between views of an end face (:mod:`decod_rs.end_faces`), also in
     #: ``constraints``.
     end_faces: FaceFactors | None = None
+    #: The side offset measured on these factors and removed from them
+    #: (:mod:`decod_rs.side_offset`).
+    side: SideOffset | None = None
 
     def report(self) -> dict[str, Any]:
         faces = self.end_faces
@@ -108,6 +112,7 @@ class SequentialFactors:
             "transverse_sigma_m": self.sigma_transverse_m,
             "boundary_polarity": self.polarity,
             "ribs": at_ribs(self.polarity),
+            "side_offset": None if self.side is None else self.side.report(),
         }
 
 
@@ -313,4 +318,7 @@ def sequential_constraints(
                 sigma_transverse_m=sigma_transverse_m,
             )
         )
+    poses = [anchors[t] for t in anchor_stamps]
+    out.side = measure_side_offset(out.constraints, poses)
+    out.constraints = without_offset(out.constraints, out.side)
     return out

@@ -218,15 +218,23 @@ def print_joints(out: Path) -> None:
 
 def print_within_passes(report: dict[str, Any]) -> None:
     """The factors within each pass (``report.json`` ``sequential``): boundaries tracked
-    from anchor to anchor, and among them those of an end face in view."""
+    from anchor to anchor, among them those of an end face in view, and the side offset
+    removed from them (:mod:`decod_rs.side_offset`), if one was."""
     section = report["sequential"]
     if section is None:
         print("within passes  none (graph.sequential = false, or --no-loops)")
         return
     faces = section.get("end_face_factors", 0)
+    side = section.get("side_offset") or {}
+    removed = ""
+    if side.get("applied"):
+        removed = (
+            f"; boundaries placed {100 * side['offset_m']:+.1f} cm away from the sensor "
+            f"(+-{100 * side['sigma_m']:.1f}), removed"
+        )
     print(
         f"within passes  {section['factors'] - faces} boundary factors, "
-        f"{faces} from an end face in view"
+        f"{faces} from an end face in view{removed}"
     )
 
 
