@@ -86,6 +86,16 @@ def test_no_offset_is_not_applied_and_leaves_the_factors_alone() -> None:
     assert without_offset(constraints, side) == constraints
 
 
+def test_an_offset_towards_the_sensor_is_measured_but_not_removed() -> None:
+    # Occlusion only places a boundary away from the sensor; a reading the other way (a
+    # rebuilt round's range-dependent error) keeps the factors as they are.
+    _, odom, constraints = _corridor(-0.03, 0.01, 1.0, seed=3)
+    side = measure_side_offset(constraints, odom)
+    assert side.offset_m == pytest.approx(-0.03, abs=3 * side.sigma_m + 1e-3)
+    assert not side.applied
+    assert without_offset(constraints, side) == constraints
+
+
 def test_too_few_straddling_pairs_measure_nothing() -> None:
     _, odom, constraints = _corridor(0.05, 0.0, 1.0, seed=1, length_m=6.0)
     side = measure_side_offset(constraints, odom)
