@@ -83,7 +83,8 @@ __all__ = [
 #: Differences (straddling against same-side pairs of one pair of submaps) below which the
 #: offset is not considered measured.
 MIN_PAIRS = 10
-#: The offset is removed when it is at least this many standard errors from 0.
+#: The offset is removed when it lies at least this many standard errors from 0, away from
+#: the sensor.
 SIGNIFICANCE = 3.0
 
 
