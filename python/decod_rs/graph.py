@@ -81,8 +81,10 @@ class LoopConstraint:
     ``kind``: ``"loop"`` (between passes) or ``"sequential"`` (two views of one boundary
     within a pass, :mod:`decod_rs.sequential`); ``sigma_m``: the position sigma of this
     factor along the corridor axis, metres (None: ``graph.landmark_position_sigma_m``);
-    ``sigma_transverse_m``: across it (None: the same as along). The five-DoF factor applies
-    them in the query landmark's axis frame (:func:`decod_rs.landmark_factor.axis_frame`).
+    ``sigma_transverse_m``: across it (None: the same as along); ``sigma_vertical_m``: across
+    it vertically, over ``sigma_transverse_m`` (None: that; :mod:`decod_rs.cross_axis`). The
+    five-DoF factor applies them in the query landmark's axis frame
+    (:func:`decod_rs.landmark_factor.axis_frame`).
     """
 
     query_index: int
@@ -96,6 +98,7 @@ class LoopConstraint:
     kind: str = "loop"
     sigma_m: float | None = None
     sigma_transverse_m: float | None = None
+    sigma_vertical_m: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("query_origin", "query_axis", "db_origin", "db_axis"):
@@ -110,14 +113,15 @@ class LoopConstraint:
             object.__setattr__(self, name, v)
         if self.query_index == self.db_index:
             raise ValueError(f"LoopConstraint: query and db are both pose {self.query_index}")
-        for name in ("sigma_m", "sigma_transverse_m"):
+        for name in ("sigma_m", "sigma_transverse_m", "sigma_vertical_m"):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ValueError(f"LoopConstraint.{name}: expected > 0 metres, got {v}")
 
     def sigmas(self, cfg: Config) -> FloatArray:
         """This factor's noise sigmas (:func:`loop_noise_sigmas` with ``sigma_m`` and, for
-        the five-DoF factor, ``sigma_transverse_m``: ``[along, across, across, axis]``)."""
+        the five-DoF factor, ``sigma_transverse_m`` and ``sigma_vertical_m``: ``[along,
+        lateral, vertical, axis]``)."""
         out = loop_noise_sigmas(cfg).copy()
         if self.sigma_m is not None:
             # five_dof: [pos x3, axis]; pose3: [rot x3, pos x3].
@@ -125,6 +129,8 @@ class LoopConstraint:
             out[position] = self.sigma_m
         if self.sigma_transverse_m is not None and cfg.loop_factor != "pose3":
             out[1:3] = self.sigma_transverse_m
+        if self.sigma_vertical_m is not None and cfg.loop_factor != "pose3":
+            out[2] = self.sigma_vertical_m  # axis_frame's rows: along, lateral, vertical
         return out
 
 
@@ -639,6 +645,7 @@ def _remap_loops(
                 kind=lc.kind,
                 sigma_m=lc.sigma_m,
                 sigma_transverse_m=lc.sigma_transverse_m,
+                sigma_vertical_m=lc.sigma_vertical_m,
             )
         )
     return out

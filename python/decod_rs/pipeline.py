@@ -203,6 +203,7 @@ def finish_run(
     )
     report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild_report(rebuild))
     report["unmeasured"] = unmeasured_report(*odometry_only)
+    report["cross_axis"] = None if solved.cross is None else solved.cross.report()
     report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
     if scale is not None and report["sequential"] is not None:
         report["sequential"]["odometry_scale"] = scale.passes

@@ -144,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
     print_rebuild(report)
     print_joints(args.out)
     print_within_passes(report)
+    print_cross_axis(report)
     print_unmeasured(report)
     if args.survey is not None:
         print_survey(report)
@@ -236,6 +237,22 @@ def print_within_passes(report: dict[str, Any]) -> None:
         f"within passes  {section['factors'] - faces} boundary factors, "
         f"{faces} from an end face in view{removed}"
     )
+
+
+def print_cross_axis(report: dict[str, Any]) -> None:
+    """Whether the landmark factors took the boundaries' heights or left them to the
+    odometry (``report.json`` ``cross_axis``, :mod:`decod_rs.cross_axis`)."""
+    section = report.get("cross_axis")
+    if section is None:
+        print("heights        from the boundaries (too few tracked views to measure their spread)")
+        return
+    spread, odom = 100 * section["vertical_spread_m"], 100 * section["odometry_sigma_m"]
+    if section["height_left_to_odometry"]:
+        why = f"the views scatter {spread:.1f} cm vertically, the odometry holds {odom:.1f} cm"
+        print(f"heights        left to the odometry ({why})")
+    else:
+        why = f"the views scatter {spread:.2f} cm vertically, the odometry {odom:.1f} cm"
+        print(f"heights        from the boundaries ({why})")
 
 
 def print_unmeasured(report: dict[str, Any]) -> None:

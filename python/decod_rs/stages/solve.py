@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from decod_rs._core import QueryResult
 from decod_rs.config import Config
+from decod_rs.cross_axis import CrossAxis, cross_axis
 from decod_rs.disambiguation import CorrectedFrame
 from decod_rs.end_faces import face_constraints
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
@@ -65,12 +66,20 @@ def loop_constraints(
 class TrackTerms:
     """What the factors take from the tracks alone, the same for every loop set of a round
     (stage 3b and the drops change the loops, never the tracks): the spread across the axis
-    every factor takes, the boundaries' polarity, and the sequential factors (computed once
-    per round: they were 0.1 s of each of the two or more solves of a 64-beam run)."""
+    every factor takes, whether they leave the height to the odometry
+    (:mod:`decod_rs.cross_axis`), the boundaries' polarity, and the sequential factors
+    (computed once per round: they were 0.1 s of each of the two or more solves of a
+    64-beam run)."""
 
     across: float | None
+    cross: CrossAxis | None
     polarity: float | None
     seq: SequentialFactors | None
+
+    def across_axis(self, c: LoopConstraint) -> LoopConstraint:
+        """``c`` with the sigmas across the axis of these terms."""
+        vertical = None if self.cross is None else self.cross.vertical_sigma_m
+        return replace(c, sigma_transverse_m=self.across, sigma_vertical_m=vertical)
 
 
 def track_terms(
@@ -87,9 +96,10 @@ def track_terms(
         ex.landmarks, matched.tracks, anchors, float(cfg.graph.landmark_position_sigma_m)
     )
     polarity = boundary_polarity(ex.landmarks)
+    path_at = path_along(*scans)
+    cross = cross_axis(ex.landmarks, matched.tracks, anchors, anchor_stamps, path_at, cfg.graph)
     seq = None
     if cfg.graph.sequential:
-        path_at = path_along(*scans)
         seq = sequential_constraints(
             ex.landmarks,
             matched.tracks,
@@ -101,24 +111,27 @@ def track_terms(
             matched.pairs,
             polarity=polarity,
         )
+        if cross is not None:
+            vertical = cross.vertical_sigma_m
+            seq.constraints = [replace(c, sigma_vertical_m=vertical) for c in seq.constraints]
         views = ex.faces if cfg.graph.end_faces else []
         faces = face_constraints(
             views, anchors, anchor_stamps, path_at, matched.split, cfg, seq.sigma_m
         )
         seq.constraints += faces.constraints  # the passes' scales take them too
         seq.end_faces = faces
-    return TrackTerms(across, polarity, seq)
+    return TrackTerms(across, cross, polarity, seq)
 
 
 def graph_factors(
     ex: SubmapLandmarks, matched: Matched, terms: TrackTerms
 ) -> tuple[list[LoopConstraint], SequentialFactors | None]:
     """Loop factors of the kept loops, then the sequential factors of the tracks; across the
-    axis, every factor takes the spread measured on the tracks (``terms``)."""
+    axis, every factor takes what the tracks measured (``terms``)."""
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     cell_z_m = ex.landmarks[0].cell_z_m if ex.landmarks else 0.0
     constraints = [
-        replace(c, sigma_transverse_m=terms.across)
+        terms.across_axis(c)
         for c in loop_constraints(
             matched.results, matched.keep, anchor_stamps, cell_z_m, at_ribs(terms.polarity)
         )
@@ -178,6 +191,9 @@ class Solved:
     correction: CorrectionResult
     scale: ScaleEstimate | None
     start: FloatArray
+    #: The views' spread across the axis and whether the factors left the height to the
+    #: odometry.
+    cross: CrossAxis | None = None
 
 
 def solve(
@@ -197,7 +213,7 @@ def solve(
     def solve_once(matched: Matched) -> Solved:
         constraints, seq = ([], None) if terms is None else graph_factors(ex, matched, terms)
         optimised = optimise(scans, ex, matched.split, constraints, seq, cfg, gap_factors)
-        return Solved(constraints, seq, *optimised)
+        return Solved(constraints, seq, *optimised, cross=None if terms is None else terms.cross)
 
     solved = solve_once(matched)
     if loops and cfg.matching.resolve_with_prior:
