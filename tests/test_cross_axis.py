@@ -10,7 +10,7 @@ import pytest
 
 from decod_rs._core import Landmark
 from decod_rs.commands.run import print_cross_axis
-from decod_rs.config import load_config
+from decod_rs.config import Config, load_config
 from decod_rs.cross_axis import (
     FREE_SIGMA_M,
     MIN_SPREAD_DOF,
@@ -52,7 +52,9 @@ def _tracks(
     origins scattered by the given sigmas; half the anchors face the other way (a return
     pass), so the axes in their body frames point backwards."""
     rng = np.random.default_rng(seed)
-    landmarks, tracks, anchors = [], [], {}
+    landmarks: list[Landmark] = []
+    tracks: list[int] = []
+    anchors: dict[float, np.ndarray] = {}
     for b in range(boundaries):
         ring = 1.5 * b
         for v in range(views):
@@ -110,6 +112,11 @@ def test_tunnel_views_leave_height_to_the_odometry_pipe_views_do_not() -> None:
     assert pipe.vertical_sigma_m is None
     assert tunnel.report()["height_left_to_odometry"]
     assert not pipe.report()["height_left_to_odometry"]
+    # An odometry modelled as drifting 5 cm per root metre across its travel (a frontend
+    # without gravity): the tunnel's 3 cm views are then the better height, and kept.
+    loose = Config({**GRAPH.to_dict(), "odom_across_sigma_ratio": 1.0})
+    kept = cross_axis(*_tracks(0.002, 0.03, seed=3), stamps, lambda s: path[s], loose)
+    assert kept is not None and kept.vertical_sigma_m is None
 
 
 def test_the_vertical_sigma_applies_in_the_axis_frame() -> None:

@@ -32,6 +32,11 @@ is measured and reported beside it but not acted on: the sections are symmetric 
 right, and leaving the lateral to the odometry too (where it scattered more) cost held-out
 runs (an 8 m horseshoe: 8 cm of lateral error, RMSE 0.071 -> 0.108 m; ``decisions.md``).
 ``report.json`` records both spreads, the odometry's sigma and the decision (``cross_axis``).
+
+The comparison is with the odometry as the graph models it, not as it was measured: an
+odometry whose height drifts more than 0.5 cm per root metre (a LiDAR-only frontend without
+gravity, say) should say so through ``graph.odom_across_sigma_ratio``, and the factors then
+keep the boundaries' heights wherever they scatter less than that.
 """
 
 from __future__ import annotations
