@@ -286,10 +286,7 @@ def _add_loops(
     cfg: Config,
     index: dict[int, int] | None = None,
 ) -> None:
-    """One robust loop factor per loop, on keys ``index[pose index]`` (identity if None).
-    The position residual is rotated into the query's axis frame, its vertical row in the
-    plane of the axis and gravity as the query's pose has it."""
-    up_body = np.einsum("nji,j->ni", p[:, :3, :3], np.array([0.0, 0.0, 1.0]))
+    """One robust loop factor per loop, on keys ``index[pose index]`` (identity if None)."""
     for lc in loops:
         noise = _robust(lc.sigmas(cfg), cfg.huber_k)
         qi, di = lc.query_index, lc.db_index
@@ -306,7 +303,7 @@ def _add_loops(
                     lc.db_origin,
                     lc.db_axis,
                     noise,
-                    frame=axis_frame(lc.query_axis, up_body[qi]),
+                    frame=axis_frame(lc.query_axis),
                 )
             )
 

@@ -19,10 +19,8 @@ qx qy qz qw], ...], "odometry": [{"from", "to", "measurement": [x y z qx qy qz q
 "query_axis", "db_origin", "db_axis", "inliers", "score", "kind", "sigmas", "huber_k"}]}``
 (``kind``: ``loop`` or ``sequential``; each factor carries its own sigmas), sigmas
 in GTSAM's rotation-first order. A landmark factor's position sigmas are along the query's
-axis, across it horizontally, then across it in the vertical plane through it, up being the
-world's +z in the query pose's frame (the graph rotates its position residual into that
-frame, :func:`decod_rs.landmark_factor.axis_frame`); the g2o line gives the one along the
-axis. The
+axis, then across it twice (the graph rotates its position residual into that frame,
+:func:`decod_rs.landmark_factor.axis_frame`); the g2o line gives the one along the axis. The
 odometry sigmas are the ones along each edge's direction of travel: the graph's edges are
 ``graph.odom_across_sigma_ratio`` times tighter across it, and its per-pose roll/pitch
 attitude factors (``graph.odom_attitude_sigma_rad``) are not exported.

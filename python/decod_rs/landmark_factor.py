@@ -17,7 +17,6 @@ through ``gtsam.Pose3.retract`` in ``tests/test_graph.py``.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import gtsam
@@ -42,19 +41,15 @@ def _f64(a: ArrayLike) -> FloatArray:
 _IDENTITY = np.eye(3)
 
 
-def axis_frame(axis: ArrayLike, up: ArrayLike | None = None) -> FloatArray:
+def axis_frame(axis: ArrayLike) -> FloatArray:
     """(3, 3) rotation whose first row is the unit ``axis`` and whose other two rows span
-    the plane across it: a position residual ``r`` becomes ``[along, across, across]``.
-    ``up``: the world's up in the same (body) frame (None: the body's +z). For an axis
-    within 64 deg of level the second row is then horizontal (lateral) and the third lies in
-    the vertical plane through the axis (:mod:`decod_rs.cross_axis` weighs them apart), also
-    for a sensor mounted rolled or pitched."""
+    the plane across it: a position residual ``r`` becomes ``[along, across, across]``. For
+    an axis within 64 deg of level the second row is horizontal (lateral) and the third lies
+    in the vertical plane through the axis (:mod:`decod_rs.cross_axis` weighs them apart)."""
     a = np.asarray(axis, dtype=np.float64)
     a = a / np.linalg.norm(a)
-    u0, u1, u2 = (0.0, 0.0, 1.0) if up is None else (float(v) for v in np.asarray(up).ravel())
-    along = float(a[0]) * u0 + float(a[1]) * u1 + float(a[2]) * u2
-    level = abs(along) < 0.9 * math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
-    e1 = np.array(_cross(a, (u0, u1, u2) if level else (1.0, 0.0, 0.0)))
+    helper = (0.0, 0.0, 1.0) if abs(a[2]) < 0.9 else (1.0, 0.0, 0.0)
+    e1 = np.array(_cross(a, helper))
     e1 /= np.linalg.norm(e1)
     return np.array([a, e1, _cross(a, e1)])
 
