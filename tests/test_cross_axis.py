@@ -3,10 +3,9 @@ the spread measured on the tracks, the rule, and what it does to the graph."""
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
+from corridor_chains import boundary_chain
 
 from decod_rs._core import Landmark
 from decod_rs.commands.run import print_cross_axis
@@ -144,32 +143,13 @@ def _scattered_views(scale: float, seed: int) -> tuple[np.ndarray, list[LoopCons
     2-10 m behind; each view's height off by 3 cm RMS plus 1 cm per 10 m of range (a
     partial section: views from farther see less of the floor)."""
     rng = np.random.default_rng(seed)
-    xs = np.arange(0.0, 40.0, 1.0)
-    odom = np.repeat(np.eye(4)[None], xs.size, axis=0)
-    odom[:, 0, 3] = xs * (1.0 - scale)
-    axis = np.array([1.0, 0.0, 0.0])
-    loops = []
-    for b in np.arange(3.0, 40.0, 1.5):
-        seen = [k for k, x in enumerate(xs) if 2.0 <= b - x <= 10.0]
-        views = {
-            k: np.array([b - xs[k], 0.0, 1.2 + 0.001 * (b - xs[k]) + rng.normal(0.0, 0.03)])
-            for k in seen
-        }
-        for i, j in itertools.pairwise(seen):
-            loops.append(
-                LoopConstraint(
-                    j,
-                    i,
-                    views[j],
-                    axis,
-                    views[i],
-                    axis,
-                    kind="sequential",
-                    sigma_m=0.02,
-                    sigma_transverse_m=0.03,
-                )
-            )
-    return odom, loops
+    return boundary_chain(
+        np.arange(0.0, 40.0, 1.0),
+        scale,
+        lambda r: 1.2 + 0.001 * r + rng.normal(0.0, 0.03),
+        sigma_m=0.02,
+        sigma_transverse_m=0.03,
+    )
 
 
 def test_heights_left_to_the_odometry_keep_the_trajectory_level() -> None:

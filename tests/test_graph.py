@@ -3,12 +3,12 @@ corridor, Huber against a wrong loop, scan propagation, exports and TUM files.""
 
 from __future__ import annotations
 
-import itertools
 import json
 
 import gtsam
 import numpy as np
 import pytest
+from corridor_chains import boundary_chain
 
 import decod_rs
 from decod_rs.config import Config
@@ -376,17 +376,7 @@ def _tilting_views(scale: float, bias_per_m: float) -> tuple[np.ndarray, list[Lo
     """A straight 40 m corridor along x (poses every 2 m, the odometry ``scale`` short) and
     every boundary (every 1.5 m) seen from the anchors 2-10 m behind it, its origin placed
     ``bias_per_m`` high per metre of distance (an axis estimate pitched that much)."""
-    xs = np.arange(0.0, 40.0, 2.0)
-    odom = np.repeat(np.eye(4)[None], xs.size, axis=0)
-    odom[:, 0, 3] = xs * (1.0 - scale)
-    axis = np.array([1.0, 0.0, 0.0])
-    loops = []
-    for b in np.arange(3.0, 40.0, 1.5):
-        seen = [k for k, x in enumerate(xs) if 2.0 <= b - x <= 10.0]
-        views = {k: np.array([b - xs[k], 0.0, bias_per_m * (b - xs[k])]) for k in seen}
-        for i, j in itertools.pairwise(seen):
-            loops.append(LoopConstraint(j, i, views[j], axis, views[i], axis, kind="sequential"))
-    return odom, loops
+    return boundary_chain(np.arange(0.0, 40.0, 2.0), scale, lambda r: bias_per_m * r)
 
 
 def test_landmark_factors_do_not_tilt_the_trajectory_away_from_gravity() -> None:
