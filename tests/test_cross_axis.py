@@ -174,7 +174,9 @@ def test_decod_run_says_where_the_heights_came_from(capsys: pytest.CaptureFixtur
     assert tunnel is not None
     print_cross_axis({"cross_axis": tunnel.report()})
     print_cross_axis({"cross_axis": None})
+    print_cross_axis({"cross_axis": None, "loops_enabled": False})
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("heights        left to the odometry (the views scatter 3."), lines
     assert lines[0].endswith("the odometry holds 0.5 cm)"), lines
     assert lines[1].startswith("heights        from the boundaries (too few tracked views"), lines
+    assert lines[2] == "heights        from the odometry (--no-loops: no landmark factors)", lines

@@ -27,11 +27,11 @@ the height); otherwise the factors keep the spread across the axis
 (:func:`decod_rs.sequential.transverse_noise_m`). In the matrix (m141) the pipes' spread is
 0.02-0.36 times the odometry's sigma (0.24-0.44 cm there), the tunnels' 1.03-5.4 times it
 (0.6-1.1 cm there); the few tunnel runs within a factor 1.5 of it are listed in
-``decisions.md``. The lateral spread
-is measured and reported beside it but not acted on: the sections are symmetric left to
-right, and leaving the lateral to the odometry too (where it scattered more) cost held-out
-runs (an 8 m horseshoe: 8 cm of lateral error, RMSE 0.071 -> 0.108 m; ``decisions.md``).
-``report.json`` records both spreads, the odometry's sigma and the decision (``cross_axis``).
+``decisions.md``. The lateral spread is measured and reported beside it but not acted on:
+the sections are symmetric left to right, and leaving the lateral to the odometry too
+(where it scattered more) cost held-out runs (an 8 m horseshoe: 8 cm of lateral error,
+RMSE 0.071 -> 0.108 m; ``decisions.md``). ``report.json`` records both spreads, the
+odometry's sigma and the decision (``cross_axis``).
 
 The comparison is with the odometry as the graph models it, not as it was measured: an
 odometry whose height drifts more than 0.5 cm per root metre (a LiDAR-only frontend without
@@ -81,7 +81,7 @@ class CrossAxis:
     lateral_spread_m: float
     vertical_spread_m: float
     odometry_sigma_m: float
-    views: int
+    degrees_of_freedom: int
 
     @property
     def vertical_sigma_m(self) -> float | None:
@@ -92,7 +92,7 @@ class CrossAxis:
             "lateral_spread_m": self.lateral_spread_m,
             "vertical_spread_m": self.vertical_spread_m,
             "odometry_sigma_m": self.odometry_sigma_m,
-            "degrees_of_freedom": self.views,
+            "degrees_of_freedom": self.degrees_of_freedom,
             "height_left_to_odometry": self.vertical_sigma_m is not None,
         }
 

@@ -45,7 +45,9 @@ def axis_frame(axis: ArrayLike) -> FloatArray:
     """(3, 3) rotation whose first row is the unit ``axis`` and whose other two rows span
     the plane across it: a position residual ``r`` becomes ``[along, across, across]``. For
     an axis within 64 deg of level the second row is horizontal (lateral) and the third lies
-    in the vertical plane through the axis (:mod:`decod_rs.cross_axis` weighs them apart)."""
+    in the vertical plane through the axis (:mod:`decod_rs.cross_axis` weighs them apart),
+    vertical as the frame's +z has it (a sensor mounted rolled by theta tilts both rows by
+    theta; ``decisions.md``, "What the graph keeps from the odometry")."""
     a = np.asarray(axis, dtype=np.float64)
     a = a / np.linalg.norm(a)
     helper = (0.0, 0.0, 1.0) if abs(a[2]) < 0.9 else (1.0, 0.0, 0.0)

@@ -243,6 +243,9 @@ def print_cross_axis(report: dict[str, Any]) -> None:
     """Whether the landmark factors took the boundaries' heights or left them to the
     odometry (``report.json`` ``cross_axis``, :mod:`decod_rs.cross_axis`)."""
     section = report.get("cross_axis")
+    if not report.get("loops_enabled", True):
+        print("heights        from the odometry (--no-loops: no landmark factors)")
+        return
     if section is None:
         print("heights        from the boundaries (too few tracked views to measure their spread)")
         return
