@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import Landmark
-from decod_rs.tracks import world_axes, world_origins
+from decod_rs.tracks import offsets_from_track_means, world_axes, world_origins
 
 FloatArray = NDArray[np.float64]
 
@@ -113,17 +113,13 @@ def cross_axis_spread(
     up = np.array([0.0, 0.0, 1.0])
     lat_sq = vert_sq = 0.0
     dof = 0
-    for t in np.unique(tracks):
-        idx = np.flatnonzero(tracks == t)
-        if idx.size < 2:
-            continue
+    for idx, d in offsets_from_track_means(where, tracks):
         a = axes[idx] * np.sign(axes[idx] @ axes[idx[0]])[:, None]
         side = np.cross(up, a.mean(axis=0))
         norm = float(np.linalg.norm(side))
         if norm < 1e-6:  # a vertical shaft: no lateral or vertical direction across it
             continue
         side /= norm
-        d = where[idx] - where[idx].mean(axis=0)
         lat_sq += float(np.sum((d @ side) ** 2))
         vert_sq += float(np.sum(d[:, 2] ** 2))
         dof += idx.size - 1

@@ -67,7 +67,7 @@ from decod_rs.end_faces import FaceFactors
 from decod_rs.graph import LoopConstraint
 from decod_rs.matching import PairMemo
 from decod_rs.side_offset import SideOffset, measure_side_offset, without_offset
-from decod_rs.tracks import world_origins
+from decod_rs.tracks import offsets_from_track_means, world_origins
 
 FloatArray = NDArray[np.float64]
 
@@ -206,13 +206,9 @@ def transverse_noise_m(
     axes = np.array([lm.axis for lm in landmarks]).reshape(-1, 3)
     axes *= np.sign(axes @ axes[0])[:, None]
     sq, dof = 0.0, 0
-    for t in np.unique(tracks):
-        idx = np.flatnonzero(tracks == t)
-        if idx.size < 2:
-            continue
+    for idx, d in offsets_from_track_means(where, tracks):
         a = axes[idx].mean(axis=0)
         a /= max(float(np.linalg.norm(a)), 1e-12)
-        d = where[idx] - where[idx].mean(axis=0)
         d -= np.outer(d @ a, a)
         sq += float(np.sum(d**2))
         dof += 2 * (idx.size - 1)
@@ -258,12 +254,14 @@ def sequential_constraints(
     pairs: PairMemo | None = None,
     *,
     polarity: float | None,
+    sigma_vertical_m: float | None = None,
 ) -> SequentialFactors:
     """Factors between consecutive views of every track (module docs). ``path_at(stamp)``:
     path length along the odometry at a stamp (metres); ``sigma_transverse_m``: their sigma
     across the axis (:func:`transverse_noise_m`; None: the same as along it); ``pairs``:
     the comparisons already made on ``landmarks`` (the track links', earlier rounds');
-    ``polarity``: :func:`boundary_polarity` of ``landmarks``."""
+    ``polarity``: :func:`boundary_polarity` of ``landmarks``; ``sigma_vertical_m``: their
+    vertical sigma over ``sigma_transverse_m`` (:mod:`decod_rs.cross_axis`; None: that)."""
     m = cfg.matching
     where = world_origins(landmarks, anchors)
     stamps = np.array([lm.submap_stamp for lm in landmarks])
@@ -316,6 +314,7 @@ def sequential_constraints(
                 kind="sequential",
                 sigma_m=sigma,
                 sigma_transverse_m=sigma_transverse_m,
+                sigma_vertical_m=sigma_vertical_m,
             )
         )
     poses = [anchors[t] for t in anchor_stamps]

@@ -28,7 +28,7 @@ boundary are one candidate, never each other's runner-up.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,6 +41,7 @@ FloatArray = NDArray[np.float64]
 __all__ = [
     "candidate_links",
     "group_views",
+    "offsets_from_track_means",
     "tracked_loops",
     "views_per_landmark",
     "world_axes",
@@ -55,6 +56,17 @@ def world_origins(landmarks: Sequence[Landmark], anchors: dict[float, FloatArray
         pose = anchors[lm.submap_stamp]
         out[k] = pose[:3, :3] @ lm.origin + pose[:3, 3]
     return out
+
+
+def offsets_from_track_means(
+    where: FloatArray, tracks: NDArray[np.int64]
+) -> Iterator[tuple[NDArray[np.int64], FloatArray]]:
+    """Per track of two or more views: the views' indices and their ``where`` rows (N, 3)
+    less the track's mean (the spread of one boundary's views)."""
+    for t in np.unique(tracks):
+        idx = np.flatnonzero(tracks == t)
+        if idx.size >= 2:
+            yield idx, where[idx] - where[idx].mean(axis=0)
 
 
 def world_axes(landmarks: Sequence[Landmark], anchors: dict[float, FloatArray]) -> FloatArray:

@@ -78,8 +78,12 @@ class TrackTerms:
 
     def across_axis(self, c: LoopConstraint) -> LoopConstraint:
         """``c`` with the sigmas across the axis of these terms."""
-        vertical = None if self.cross is None else self.cross.vertical_sigma_m
-        return replace(c, sigma_transverse_m=self.across, sigma_vertical_m=vertical)
+        return replace(c, sigma_transverse_m=self.across, sigma_vertical_m=_vertical(self.cross))
+
+
+def _vertical(cross: CrossAxis | None) -> float | None:
+    """The factors' vertical sigma (None: the spread across the axis)."""
+    return None if cross is None else cross.vertical_sigma_m
 
 
 def track_terms(
@@ -110,10 +114,8 @@ def track_terms(
             across,
             matched.pairs,
             polarity=polarity,
+            sigma_vertical_m=_vertical(cross),
         )
-        if cross is not None:
-            vertical = cross.vertical_sigma_m
-            seq.constraints = [replace(c, sigma_vertical_m=vertical) for c in seq.constraints]
         views = ex.faces if cfg.graph.end_faces else []
         faces = face_constraints(
             views, anchors, anchor_stamps, path_at, matched.split, cfg, seq.sigma_m
