@@ -25,6 +25,7 @@ from decod_rs.sim import (
 )
 from decod_rs.sim.surface import Scene
 from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
+from decod_rs.tum import read_tum
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 # Short runs: 2 m out and back at 0.5 m/s is ~17 s of log (171 scans); 800 rays per scan.
@@ -306,6 +307,39 @@ def test_turn_rotates_heading_and_gyro_integrates_it() -> None:
     assert np.sum(imu.gyro_radps[turn, 2]) / 100.0 == pytest.approx(np.pi, rel=0.01)
 
 
+def test_stops_halt_the_vehicle_where_asked_and_keep_the_path() -> None:
+    length, speed = 20.0, 1.0
+    plain = TrajectorySpec(x_start_m=1.0, length_m=length, speed_mps=speed, return_mode="turn")
+    stops = ((0.0, 0.5, 10.0), (1.0, 0.3, 5.0))
+    spec = TrajectorySpec(**{**plain.as_dict(), "stops": stops})
+    tr, ref = (Trajectory(s, np.random.default_rng(0)) for s in (spec, plain))
+    # Each halt costs its seconds plus one ramp (slowing down and speeding up half a ramp each).
+    assert tr.duration_s == pytest.approx(ref.duration_s + 10.0 + 5.0 + 2 * spec.ramp_s)
+    t = np.arange(0.0, tr.duration_s, 0.01)
+    x, v = tr.axial(t), np.gradient(tr.axial(t), t)
+    out, back = t < tr.t_far_arrive - 1.0, t > tr.t_return_start + 1.0
+    halted_out = out & (t > spec.pre_s + 1.0) & (np.abs(v) < 1e-9)
+    halted_back = back & (t < tr.duration_s - spec.post_s - 1.0) & (np.abs(v) < 1e-9)
+    # Standing still for the seconds asked, half-way out and 30 % of the way back.
+    assert np.ptp(t[halted_out]) == pytest.approx(10.0, abs=0.02)
+    assert np.ptp(t[halted_back]) == pytest.approx(5.0, abs=0.02)
+    assert np.allclose(x[halted_out], 1.0 + 0.5 * length, atol=1e-6)
+    assert np.allclose(x[halted_back], 1.0 + length - 0.3 * length, atol=1e-6)
+    # The same path: pose at equal travelled distance unchanged, far end and end the same.
+    assert x.max() == pytest.approx(ref.axial(np.array([ref.t_far_arrive]))[0])
+    assert tr.travelled(np.array([tr.duration_s]))[0] == pytest.approx(2 * length)
+    probe = np.array([30.0])  # 15 m along the outbound after the stop
+    d = tr.travelled(probe)[0]
+    tr_ref = np.interp(d, ref.travelled(t), t)
+    assert np.allclose(tr.poses(probe), ref.poses(np.array([tr_ref])), atol=1e-6)
+    # Smooth enough for the IMU: the deceleration is the leg ramps' own.
+    assert np.abs(np.gradient(v, t)).max() < 1.1 * np.pi * speed / (2 * spec.ramp_s)
+    for bad in ((2.0, 0.5, 1.0), (0.0, 0.01, 1.0), (0.0, 0.5, 0.0)):
+        spec = TrajectorySpec(**{**plain.as_dict(), "stops": (bad,)})
+        with pytest.raises(ValueError, match="stop"):
+            Trajectory(spec, np.random.default_rng(0))
+
+
 def test_bad_input_is_named(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="unknown scene"):
         Simulation("sewer")
@@ -489,3 +523,24 @@ def test_cli_scene_param(tmp_path: Path) -> None:
     doc = json.loads((tmp_path / "joints.json").read_text())
     assert doc["scene_params"]["radius_m"] == 0.3 and doc["scene_params"]["segment_length_m"] == 3
     assert cli_main([*args, "--scene-param", "diameter=1", "--force"]) == 2
+
+
+def test_cli_stop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["simulate", "pe", "--out", str(tmp_path), "--length", "4", "--speed", "0.5"]
+    args += ["--rays", "100", "--drift", "none", "--quiet"]
+    assert cli_main([*args, "--stop", "out:0.5:3"]) == 0
+    doc = json.loads((tmp_path / "joints.json").read_text())
+    assert doc["trajectory"]["stops"] == [[0.0, 0.5, 3.0]]
+    stamps, poses = read_tum(tmp_path / "gt.tum")
+    x = poses[:, 0, 3]
+    # Standing still (scan to scan) for the 3 s asked, half-way along the outbound leg.
+    still = np.flatnonzero((np.abs(np.diff(x)) < 1e-9) & (np.abs(x[1:] - x[0] - 2.0) < 0.01))
+    assert 29 <= still.size <= 31 and np.ptp(stamps[still]) == pytest.approx(2.9, abs=0.11)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as refused:
+        cli_main([*args, "--stop", "halfway:0.5:3", "--force"])
+    assert refused.value.code == 2 and "LEG:FRACTION:SECONDS" in capsys.readouterr().err
+    # A stop on the leg's own ramp is refused by name, the earlier log kept.
+    assert cli_main([*args, "--stop", "back:0.01:3", "--force"]) == 2
+    assert "cruise" in capsys.readouterr().err
+    assert (tmp_path / "log" / "metadata.yaml").is_file()

@@ -61,6 +61,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "0,20; default 0,0",
     )
     p.add_argument(
+        "--stop",
+        dest="stops",
+        action="append",
+        default=[],
+        type=_stop,
+        metavar="LEG:FRACTION:SECONDS",
+        help="halt along a leg (repeatable): leg out or back, the fraction of the leg's "
+        "length, seconds standing still, e.g. out:0.5:20 (an inspection stop at a defect)",
+    )
+    p.add_argument(
         "--odometry",
         choices=["drift", "kiss-icp"],
         default="drift",
@@ -82,6 +92,19 @@ def _mount(text: str) -> tuple[float, float]:
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"--mount takes ROLL,PITCH in degrees (e.g. 0,20), got {text!r}"
+        ) from None
+
+
+def _stop(text: str) -> tuple[float, float, float]:
+    try:
+        leg, fraction, seconds = text.split(":")
+        if leg not in ("out", "back"):
+            raise ValueError
+        return (0.0 if leg == "out" else 1.0), float(fraction), float(seconds)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--stop takes LEG:FRACTION:SECONDS with LEG out or back (e.g. out:0.5:20), "
+            f"got {text!r}"
         ) from None
 
 
@@ -120,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         scene_overrides=dict(args.scene_params) or None,
         world_seed=args.world_seed,
         mount_deg=args.mount,
+        stops=args.stops,
         odometry=args.odometry,
         livox=args.livox,
         ros1=args.ros1,

@@ -7,6 +7,7 @@ import contextlib
 import math
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,6 +74,7 @@ class Simulation:
         scene_overrides: dict[str, Any] | None = None,
         world_seed: int | None = None,
         mount_deg: tuple[float, float] = (0.0, 0.0),
+        stops: Sequence[tuple[float, float, float]] = (),
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
         # The world (scene geometry) may come from another seed than the run (noise, drift,
@@ -84,7 +86,7 @@ class Simulation:
         self.identical_joints = bool(identical_joints)
         length = defaults.length_m if length_m is None else float(length_m)
         speed = defaults.speed_mps if speed_mps is None else float(speed_mps)
-        self.traj_spec = _trajectory_spec(defaults, length, speed, return_mode, mount_deg)
+        self.traj_spec = _trajectory_spec(defaults, length, speed, return_mode, mount_deg, stops)
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
         self.scene: Scene = build_scene(
@@ -506,9 +508,10 @@ def _trajectory_spec(
     speed: float,
     return_mode: str | None,
     mount_deg: tuple[float, float],
+    stops: Sequence[tuple[float, float, float]] = (),
 ) -> TrajectorySpec:
     """The run's trajectory: the scene's ``defaults`` (:func:`defaults_for`) with the length,
-    speed, return mode (None: the scene's) and sensor mount asked for."""
+    speed, return mode (None: the scene's), sensor mount and stops asked for."""
     if not (np.isfinite(length) and length > 0):
         raise ValueError(f"length_m must be > 0, got {length}")
     roll, pitch = _mount(mount_deg)
@@ -526,6 +529,7 @@ def _trajectory_spec(
         wobble_wavelength_m=defaults.wobble_wavelength_m,
         mount_roll_rad=float(np.radians(roll)),
         mount_pitch_rad=float(np.radians(pitch)),
+        stops=tuple((float(a), float(b), float(c)) for a, b, c in stops),
     )
 
 
@@ -556,6 +560,7 @@ def simulate(
     scene_overrides: dict[str, Any] | None = None,
     world_seed: int | None = None,
     mount_deg: tuple[float, float] = (0.0, 0.0),
+    stops: Sequence[tuple[float, float, float]] = (),
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -578,6 +583,8 @@ def simulate(
     the same): two inspections of one world with their own noise and drift. ``mount_deg``:
     the sensor's static mount, ``(roll, pitch)`` in degrees (pitch positive nose down), which
     the scans, odometry, IMU and ground truth all carry (:class:`TrajectorySpec`).
+    ``stops``: halts along the legs, ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return;
+    :class:`TrajectorySpec`), as an inspection robot makes at defects.
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
@@ -589,8 +596,8 @@ def simulate(
     out = Path(out_dir)
     log_dir = out / LOG_DIRNAME
     bag_path = out / ROS1_BAG_NAME
-    _clear_outputs((log_dir, bag_path), overwrite)
-    out.mkdir(parents=True, exist_ok=True)
+    if not overwrite:
+        _clear_outputs((log_dir, bag_path), overwrite)  # refused before the work
     sim = Simulation(
         scene,
         seed=seed,
@@ -605,7 +612,12 @@ def simulate(
         scene_overrides=scene_overrides,
         world_seed=world_seed,
         mount_deg=mount_deg,
+        stops=stops,
     )
+    # Every argument checked (the Simulation refuses a bad one): only now is an earlier
+    # simulation in ``out`` replaced.
+    _clear_outputs((log_dir, bag_path), overwrite)
+    out.mkdir(parents=True, exist_ok=True)
     kiss = KissOdometry(scene, sim.gt_poses[0]) if odometry == "kiss-icp" else None
     t_setup = time.perf_counter() - t_start
     with contextlib.ExitStack() as stack:

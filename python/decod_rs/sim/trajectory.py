@@ -3,6 +3,10 @@
 The vehicle stands still for ``pre_s``, drives ``length_m`` out with cosine speed ramps,
 stops at the far end (``reverse``: drives back with the heading unchanged, a pipe crawler;
 ``turn``: turns 180 deg in place, then drives back), and stands still for ``post_s``.
+``stops`` make it halt along a leg, as an inspection robot does at a defect: each
+``(leg, fraction, seconds)`` (leg 0 outbound, 1 return) slows down over ``ramp_s`` to stand
+still about ``fraction`` of the way along that leg, stays for ``seconds`` and drives on
+(a time warp of the leg: the path and the wobble along it are unchanged).
 Lateral, vertical, roll, pitch and yaw wobble are functions of the travelled distance (a path
 that wanders in space; no wobble while standing still), so the IMU is quiet at rest.
 """
@@ -125,9 +129,53 @@ class TrajectorySpec:
     #: ground truth are all of the mounted sensor, as a driver publishes them.
     mount_roll_rad: float = 0.0
     mount_pitch_rad: float = 0.0
+    #: Halts along the legs: ``(leg, fraction, seconds)``, leg 0 (outbound) or 1 (return),
+    #: ``fraction`` of the leg's length in (0, 1) (within the cruise, away from the ramps).
+    stops: tuple[tuple[float, float, float], ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def _halted(t: F64, ramp: float, hold: float) -> F64:
+    """Seconds of motion a halt has taken out ``t`` seconds after it began to slow down: the
+    speed falls to 0 over ``ramp`` seconds (cosine), stays 0 for ``hold``, and comes back over
+    ``ramp`` (in all ``ramp + hold`` seconds once it is over)."""
+    t = np.asarray(t, dtype=np.float64)
+
+    def ramped(u: F64) -> F64:  # integral of (1 - cos(pi u / ramp)) / 2 over [0, u]
+        u = np.clip(u, 0.0, ramp)
+        return 0.5 * (u - ramp / np.pi * np.sin(np.pi * u / ramp))
+
+    slowing = ramped(t)
+    stopped = np.clip(t - ramp, 0.0, hold)
+    resuming = np.clip(t - ramp - hold, 0.0, ramp) - ramped(t - ramp - hold)
+    return slowing + stopped + resuming
+
+
+def _halts(spec: TrajectorySpec, leg_s: float) -> tuple[list[tuple[float, float, float]], ...]:
+    """Per leg, its stops as ``(elapsed time the slowing starts, fraction, seconds)`` in
+    order; a stop is refused unless it lies within the leg's cruise (the ramps at either end
+    are the leg's own start and stop)."""
+    legs: tuple[list[tuple[float, float, float]], ...] = ([], [])
+    for stop in spec.stops:
+        leg, fraction, hold = (float(v) for v in stop)
+        if leg not in (0.0, 1.0) or not (np.isfinite(hold) and hold > 0.0):
+            raise ValueError(f"stop {stop}: leg must be 0 or 1 and seconds > 0")
+        # Motion time at which the vehicle is `fraction` along (cruise: d = v (tau - ramp/2)).
+        tau = fraction * spec.length_m / spec.speed_mps + 0.5 * spec.ramp_s
+        if not (2.0 * spec.ramp_s <= tau <= leg_s - 2.0 * spec.ramp_s):
+            raise ValueError(f"stop {stop}: fraction must lie within the leg's cruise")
+        legs[int(leg)].append((tau, fraction, hold))
+    out: tuple[list[tuple[float, float, float]], ...] = ([], [])
+    for leg, halts in enumerate(legs):
+        lost = 0.0
+        for tau, fraction, hold in sorted(halts):
+            # It slows down half a ramp of motion before the stop point, after the time
+            # the earlier stops of the leg took.
+            out[leg].append((tau - 0.5 * spec.ramp_s + lost, fraction, hold))
+            lost += hold + spec.ramp_s
+    return out
 
 
 class Trajectory:
@@ -142,11 +190,14 @@ class Trajectory:
                 f"({spec.speed_mps * spec.ramp_s}) and speed_mps must be > 0"
             )
         self.spec = spec
+        # Motion time of a leg (without its stops) and, per leg, its stops' warps.
         self.leg_s = spec.length_m / spec.speed_mps + spec.ramp_s
+        self._halts = _halts(spec, self.leg_s)
         self.stop_s = spec.turn_s if spec.return_mode == "turn" else spec.pause_s
-        self.t_far_arrive = spec.pre_s + self.leg_s
+        out_s, back_s = (self.leg_s + sum(h[2] + spec.ramp_s for h in leg) for leg in self._halts)
+        self.t_far_arrive = spec.pre_s + out_s
         self.t_return_start = self.t_far_arrive + self.stop_s
-        self.duration_s = self.t_return_start + self.leg_s + spec.post_s
+        self.duration_s = self.t_return_start + back_s + spec.post_s
         # Wobble: per degree of freedom, three spatial harmonics with random phases.
         self._wob: dict[str, tuple[F64, F64, F64]] = {}
         lam = spec.wobble_wavelength_m
@@ -175,17 +226,27 @@ class Trajectory:
 
         return np.where(tau <= 0.5 * tl, up(tau), self.spec.length_m - up(tl - tau))
 
+    def _motion(self, leg: int, elapsed: F64) -> F64:
+        """Motion time of ``leg`` after ``elapsed`` seconds of it, its stops taken out."""
+        tau = np.asarray(elapsed, dtype=np.float64).copy()
+        ramp = self.spec.ramp_s
+        for start, _, hold in self._halts[leg]:
+            tau -= _halted(elapsed - start, ramp, hold)
+        return tau
+
     def travelled(self, t: F64) -> F64:
         """Distance travelled along the axis since the start, metres (monotone)."""
         s = self.spec
-        out = self._leg(t - s.pre_s)
-        back = self._leg(t - self.t_return_start)
+        out = self._leg(self._motion(0, t - s.pre_s))
+        back = self._leg(self._motion(1, t - self.t_return_start))
         return out + back
 
     def axial(self, t: F64) -> F64:
         """Nominal axial position (world x) without wobble."""
         s = self.spec
-        return s.x_start_m + self._leg(t - s.pre_s) - self._leg(t - self.t_return_start)
+        out = self._leg(self._motion(0, t - s.pre_s))
+        back = self._leg(self._motion(1, t - self.t_return_start))
+        return s.x_start_m + out - back
 
     def _wobble(self, name: str, d: F64) -> F64:
         k, a, ph = self._wob[name]
