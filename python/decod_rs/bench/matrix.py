@@ -12,10 +12,11 @@ and 4 m (and the scenes' own 1.2, 1.5, 2.43 and 6 m), tunnel widths 3, 4, 9 and 
 the scenes' 5 and 6 m), speeds 0.2, 0.8 and 2 m/s (and the scenes' 0.4, 1.2 and 1.5 m/s), and
 an aliased hume pipe (identical joints). The quick tier (:data:`QUICK`) is 8 of these cells:
 one per scene with its main sensor, an uneven-drift hume, the aliased pipe and two held-out
-variants. The fresh tier (:data:`FRESH`) is eight cells outside the full tier, all held
+variants. The fresh tier (:data:`FRESH`) is ten cells outside the full tier, all held
 out: other diameters (0.45, 0.8 m), joint spacing (2 m), widths (4, 7 m) and speeds (0.3,
-0.6, 1.0, 2.0 m/s), with sensor and return combinations of their own, and two sensors
-mounted pitched or rolled (every other cell's sensor is level).
+0.6, 1.0, 2.0 m/s), with sensor and return combinations of their own, two sensors
+mounted pitched or rolled (every other cell's sensor is level) and two runs that stop along
+the way for 10-20 s (every other cell drives through).
 
 **Sensors that see the walls.** A boundary is matched from its unrolled ring, so the whole
 ring (above a tunnel's floor) must fall inside the field of view from some distance:
@@ -149,6 +150,8 @@ class Cell:
     profiles: tuple[str, ...] = (SYMMETRIC, UNEVEN)
     #: The sensor's static mount, (roll, pitch) deg (``decod simulate --mount``).
     mount_deg: tuple[float, float] = (0.0, 0.0)
+    #: Halts along the legs, (leg, fraction, seconds) (``decod simulate --stop``).
+    stops: tuple[tuple[float, float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,7 @@ def _fresh(
     variant: str,
     speed_mps: float | None = None,
     mount_deg: tuple[float, float] = (0.0, 0.0),
+    stops: tuple[tuple[float, float, float], ...] = (),
     **overrides: float,
 ) -> Cell:
     """A fresh-tier cell: scene, sensor and return mode read from ``name`` (the matrix's
@@ -225,6 +229,7 @@ def _fresh(
         held_out=True,
         variant=variant,
         mount_deg=mount_deg,
+        stops=stops,
         profiles=(SYMMETRIC, UNEVEN, OVERLONG),
     )
 
@@ -234,7 +239,9 @@ def _fresh(
 #: would be: nothing was chosen on them, and what they show is reported as it came out
 #: (README). Every sensor here sees its corridor's walls (:func:`sees_walls`). The last two
 #: (added with the axis decision of ``src/wall_normals.rs``, whose development used seed 61)
-#: mount the sensor pitched or rolled, which no other cell does.
+#: mount the sensor pitched or rolled, which no other cell does; the two after them (added
+#: with the simulator's stops, first run as they are) halt along the way, as an inspection
+#: robot does at defects, which no other cell does.
 FRESH: tuple[Cell, ...] = (
     _fresh("pe-spin16-reverse-s7-d0.8", 30.0, "pe, diameter 0.8 m", radius_m=0.4),
     _fresh(
@@ -271,6 +278,18 @@ FRESH: tuple[Cell, ...] = (
         30.0,
         "hume, 16 beams rolled 30 deg and pitched 10 deg",
         mount_deg=(30.0, 10.0),
+    ),
+    _fresh(
+        "hume-avia-reverse-s7-stops",
+        30.0,
+        "hume, stops of 20 and 15 s out and 10 s back",
+        stops=((0.0, 0.3, 20.0), (0.0, 0.7, 15.0), (1.0, 0.5, 10.0)),
+    ),
+    _fresh(
+        "shield-spin64-turn-s7-stops",
+        40.0,
+        "shield, stops of 20 s out and 15 s back",
+        stops=((0.0, 0.4, 20.0), (1.0, 0.6, 15.0)),
     ),
 )
 
@@ -627,6 +646,7 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
         speed_mps=cell.speed_mps,
         scene_overrides=cell.scene_overrides or None,
         mount_deg=cell.mount_deg,
+        stops=cell.stops,
         progress=False,
         overwrite=True,
     )
