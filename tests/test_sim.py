@@ -529,6 +529,7 @@ def test_cli_stop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     args = ["simulate", "pe", "--out", str(tmp_path), "--length", "4", "--speed", "0.5"]
     args += ["--rays", "100", "--drift", "none", "--quiet"]
     assert cli_main([*args, "--stop", "out:0.5:3"]) == 0
+    assert "stop           3 s standing, 50 % of the way out" in capsys.readouterr().out
     doc = json.loads((tmp_path / "joints.json").read_text())
     assert doc["trajectory"]["stops"] == [[0.0, 0.5, 3.0]]
     stamps, poses = read_tum(tmp_path / "gt.tum")

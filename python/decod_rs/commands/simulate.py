@@ -157,6 +157,9 @@ def run(args: argparse.Namespace) -> int:
         f"({res.n_points / max(res.n_scans, 1):.0f} per scan), {res.n_imu} IMU samples"
     )
     print(f"duration       {res.duration_s:.1f} s of log")
+    for leg, fraction, seconds in args.stops:
+        where = "out" if leg == 0.0 else "back"
+        print(f"stop           {seconds:g} s standing, {100 * fraction:g} % of the way {where}")
     print(f"joints         {res.n_joints} true boundaries in {res.joints_json}")
     print(f"odometry       endpoint error {res.endpoint_error_m:.3f} m")
     print(f"log            {res.log_dir} ({mb:.1f} MB)")
