@@ -98,6 +98,11 @@ def test_the_odometry_sigma_is_the_graphs_over_one_anchor_interval() -> None:
     # No motion, or a single anchor: nothing to compare with.
     assert odometry_across_sigma_m(stamps, lambda s: 0.0, GRAPH) is None
     assert odometry_across_sigma_m(stamps[:1], lambda s: 0.0, GRAPH) is None
+    # A stop (anchors 10-29 standing at 25 m) is no interval of travel: the same sigma, where
+    # the median over every interval would have been 0 and the heights rule had nothing.
+    stopped = np.arange(40.0)
+    where = {float(s): 2.5 * float(min(s, 10.0) + max(s - 29.0, 0.0)) for s in stopped}
+    assert odometry_across_sigma_m(stopped, lambda s: where[s], GRAPH) == pytest.approx(expected)
 
 
 def test_tunnel_views_leave_height_to_the_odometry_pipe_views_do_not() -> None:

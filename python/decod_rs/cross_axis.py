@@ -71,6 +71,10 @@ FREE_SIGMA_M = 1.0
 #: (the factors then keep the sigma they had).
 MIN_SPREAD_DOF = 10
 
+#: An anchor interval shorter than this fraction of the 90th percentile interval is the
+#: robot standing still, not an interval of travel (:func:`odometry_across_sigma_m`).
+MOVING_FRACTION = 0.1
+
 
 @dataclass(frozen=True)
 class CrossAxis:
@@ -132,13 +136,19 @@ def odometry_across_sigma_m(
     anchor_stamps: FloatArray, path_at: Callable[[float], float], graph: Any
 ) -> float | None:
     """The graph's odometry sigma across the direction of travel over the median distance
-    between consecutive anchors (:mod:`decod_rs.graph`); None with fewer than two anchors or
-    no motion."""
+    between consecutive anchors while the robot moves (:mod:`decod_rs.graph`); None with
+    fewer than two anchors or no motion. Anchor intervals shorter than a tenth of the 90th
+    percentile are standing still (an inspection stop, the turn in place): counted, a run that
+    stood for half its time would have a median interval of 0 and no sigma."""
     if len(anchor_stamps) < 2:
         return None
-    path = np.array([path_at(float(s)) for s in anchor_stamps])
-    step = float(np.median(np.diff(path)))
-    if not np.isfinite(step) or step <= 0.0:
+    steps = np.diff(np.array([path_at(float(s)) for s in anchor_stamps]))
+    steps = steps[np.isfinite(steps)]
+    if steps.size == 0:
+        return None
+    moving = steps[steps > MOVING_FRACTION * float(np.percentile(steps, 90.0))]
+    step = float(np.median(moving)) if moving.size else 0.0
+    if not step > 0.0:
         return None
     per_m = float(graph.odom_translation_sigma_per_m) * float(graph.odom_across_sigma_ratio)
     return per_m * float(np.sqrt(step))
