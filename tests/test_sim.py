@@ -338,6 +338,11 @@ def test_stops_halt_the_vehicle_where_asked_and_keep_the_path() -> None:
         spec = TrajectorySpec(**{**plain.as_dict(), "stops": (bad,)})
         with pytest.raises(ValueError, match="stop"):
             Trajectory(spec, np.random.default_rng(0))
+    # Two halts a metre apart at 1 m/s overlap their 2 s ramps: refused, not driven backwards.
+    close = ((0.0, 0.5, 3.0), (0.0, 0.55, 3.0))
+    spec = TrajectorySpec(**{**plain.as_dict(), "stops": close})
+    with pytest.raises(ValueError, match="closer than one ramp"):
+        Trajectory(spec, np.random.default_rng(0))
 
 
 def test_bad_input_is_named(tmp_path: Path) -> None:

@@ -153,11 +153,12 @@ def _halted(t: F64, ramp: float, hold: float) -> F64:
     return slowing + stopped + resuming
 
 
-def _halts(spec: TrajectorySpec, leg_s: float) -> tuple[list[tuple[float, float, float]], ...]:
-    """Per leg, its stops as ``(elapsed time the slowing starts, fraction, seconds)`` in
-    order; a stop is refused unless it lies within the leg's cruise (the ramps at either end
-    are the leg's own start and stop)."""
-    legs: tuple[list[tuple[float, float, float]], ...] = ([], [])
+def _halts(spec: TrajectorySpec, leg_s: float) -> tuple[list[tuple[float, float]], ...]:
+    """Per leg, its stops as ``(elapsed time the slowing starts, seconds)`` in order; a stop
+    is refused unless it lies within the leg's cruise (the ramps at either end are the leg's
+    own start and stop) and a ramp of motion away from the leg's other stops (two halts
+    overlapping would drive the vehicle backwards)."""
+    legs: tuple[list[tuple[float, float]], ...] = ([], [])
     for stop in spec.stops:
         leg, fraction, hold = (float(v) for v in stop)
         if leg not in (0.0, 1.0) or not (np.isfinite(hold) and hold > 0.0):
@@ -166,15 +167,18 @@ def _halts(spec: TrajectorySpec, leg_s: float) -> tuple[list[tuple[float, float,
         tau = fraction * spec.length_m / spec.speed_mps + 0.5 * spec.ramp_s
         if not (2.0 * spec.ramp_s <= tau <= leg_s - 2.0 * spec.ramp_s):
             raise ValueError(f"stop {stop}: fraction must lie within the leg's cruise")
-        legs[int(leg)].append((tau, fraction, hold))
-    out: tuple[list[tuple[float, float, float]], ...] = ([], [])
+        legs[int(leg)].append((tau, hold))
+    out: tuple[list[tuple[float, float]], ...] = ([], [])
     for leg, halts in enumerate(legs):
-        lost = 0.0
-        for tau, fraction, hold in sorted(halts):
+        lost, last = 0.0, -np.inf
+        for tau, hold in sorted(halts):
+            if tau - last < spec.ramp_s:
+                raise ValueError(f"stops on leg {leg}: closer than one ramp of driving apart")
             # It slows down half a ramp of motion before the stop point, after the time
             # the earlier stops of the leg took.
-            out[leg].append((tau - 0.5 * spec.ramp_s + lost, fraction, hold))
+            out[leg].append((tau - 0.5 * spec.ramp_s + lost, hold))
             lost += hold + spec.ramp_s
+            last = tau
     return out
 
 
@@ -194,7 +198,7 @@ class Trajectory:
         self.leg_s = spec.length_m / spec.speed_mps + spec.ramp_s
         self._halts = _halts(spec, self.leg_s)
         self.stop_s = spec.turn_s if spec.return_mode == "turn" else spec.pause_s
-        out_s, back_s = (self.leg_s + sum(h[2] + spec.ramp_s for h in leg) for leg in self._halts)
+        out_s, back_s = (self.leg_s + sum(h + spec.ramp_s for _, h in leg) for leg in self._halts)
         self.t_far_arrive = spec.pre_s + out_s
         self.t_return_start = self.t_far_arrive + self.stop_s
         self.duration_s = self.t_return_start + back_s + spec.post_s
@@ -230,7 +234,7 @@ class Trajectory:
         """Motion time of ``leg`` after ``elapsed`` seconds of it, its stops taken out."""
         tau = np.asarray(elapsed, dtype=np.float64).copy()
         ramp = self.spec.ramp_s
-        for start, _, hold in self._halts[leg]:
+        for start, hold in self._halts[leg]:
             tau -= _halted(elapsed - start, ramp, hold)
         return tau
 
