@@ -614,9 +614,10 @@ def simulate(
         mount_deg=mount_deg,
         stops=stops,
     )
-    # Every argument checked (the Simulation refuses a bad one): only now is an earlier
-    # simulation in ``out`` replaced.
-    _clear_outputs((log_dir, bag_path), overwrite)
+    if overwrite:
+        # Every argument checked (the Simulation refuses a bad one): only now is an earlier
+        # simulation in ``out`` replaced.
+        _clear_outputs((log_dir, bag_path), overwrite)
     out.mkdir(parents=True, exist_ok=True)
     kiss = KissOdometry(scene, sim.gt_poses[0]) if odometry == "kiss-icp" else None
     t_setup = time.perf_counter() - t_start

@@ -238,19 +238,21 @@ class Trajectory:
             tau -= _halted(elapsed - start, ramp, hold)
         return tau
 
+    def _legs(self, t: F64) -> tuple[F64, F64]:
+        """Distance covered on the outbound and on the return leg at times ``t``."""
+        out = self._leg(self._motion(0, t - self.spec.pre_s))
+        back = self._leg(self._motion(1, t - self.t_return_start))
+        return out, back
+
     def travelled(self, t: F64) -> F64:
         """Distance travelled along the axis since the start, metres (monotone)."""
-        s = self.spec
-        out = self._leg(self._motion(0, t - s.pre_s))
-        back = self._leg(self._motion(1, t - self.t_return_start))
+        out, back = self._legs(t)
         return out + back
 
     def axial(self, t: F64) -> F64:
         """Nominal axial position (world x) without wobble."""
-        s = self.spec
-        out = self._leg(self._motion(0, t - s.pre_s))
-        back = self._leg(self._motion(1, t - self.t_return_start))
-        return s.x_start_m + out - back
+        out, back = self._legs(t)
+        return self.spec.x_start_m + out - back
 
     def _wobble(self, name: str, d: F64) -> F64:
         k, a, ph = self._wob[name]
