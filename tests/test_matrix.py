@@ -14,6 +14,7 @@ from decod_rs.bench.matrix import (
     MAX_FULL_RING_M,
     OVERLONG,
     QUICK,
+    SLIP,
     SYMMETRIC,
     UNEVEN,
     evaluate_targets,
@@ -23,6 +24,7 @@ from decod_rs.bench.matrix import (
     full_ring_distance_m,
     joint_coverage,
     loop_summary,
+    main,
     profile_odometry,
     registry_chainage_errors,
     ring_distance_for,
@@ -149,6 +151,41 @@ def test_leg_profiles_scale_each_leg_of_the_odometry(tmp_path, profile, scales) 
     true_back = traj.axial(stamps[split]) - traj.axial(stamps[-1])
     assert out / true_out == pytest.approx(scales[0], abs=0.01)
     assert back / true_back == pytest.approx(scales[1], abs=0.01)
+
+
+def test_slip_profile_and_the_profiles_option(tmp_path, capsys) -> None:
+    """``--profiles slip`` runs the slip profile in every cell (``--list`` shows it); the
+    slip odometry of a cell's ground truth reads between 85 % and 99 % of each 2 m stretch;
+    an unknown profile is refused before anything runs."""
+    from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
+    from decod_rs.tum import read_tum, write_tum
+
+    assert (
+        main(["--out", str(tmp_path / "m"), "--tier", "quick", "--profiles", SLIP, "--list"]) == 0
+    )
+    listed = capsys.readouterr().out.strip().splitlines()
+    assert listed and all(": slip " in line for line in listed)
+    assert main(["--out", str(tmp_path / "m"), "--profiles", "slip,sideways"]) == 2
+    assert "sideways" in capsys.readouterr().err and not (tmp_path / "m").exists()
+
+    spec = TrajectorySpec(x_start_m=0.5, length_m=30.0, speed_mps=1.0, return_mode="reverse")
+    traj = Trajectory(spec, np.random.default_rng(0))
+    stamps = np.arange(0.0, traj.duration_s, 0.1)
+    split = int(np.argmax(traj.travelled(stamps) >= traj.travelled(traj.t_far_arrive)))
+    sim = tmp_path / "sim"
+    sim.mkdir()
+    write_tum(sim / "gt.tum", stamps, traj.poses(stamps))
+    meta = {"trajectory": spec.as_dict(), "time_split": {"outbound_scans": [0, split]}}
+    (sim / "joints.json").write_text(json.dumps(meta), encoding="utf-8")
+    _, odom = read_tum(profile_odometry(tier_cells("full")[0], sim, SLIP, tmp_path / "o.tum"))
+    true_x, x = traj.axial(stamps), odom[:, 0, 3]
+    d = traj.travelled(stamps)
+    for lo in np.arange(2.0, d[-1] - 4.0, 2.0):
+        k = np.flatnonzero((d >= lo) & (d < lo + 2.0))
+        step_true, step = true_x[k[-1]] - true_x[k[0]], x[k[-1]] - x[k[0]]
+        if abs(step_true) > 1.5:  # a stretch of steady driving (not the turnaround)
+            # 1 cm/sqrt(m) of axial walk: 0.03 of slack
+            assert 0.85 - 0.03 < step / step_true < 0.99 + 0.03
 
 
 def test_full_ring_distance_follows_the_field_of_view() -> None:

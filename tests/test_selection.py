@@ -351,10 +351,23 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
     same, untied = rescale_odometry(t, odom, anchors, a_odom, seq[:1], 0.01, 40.0, tied=False)
     np.testing.assert_allclose(same, odom)
     assert [p["rescaled"] for p in untied.passes] == [False, False]
-    # The return measured alone moves nothing after it: rescaled with or without a loop.
+    # The return measured alone, without a loop: the odometry stands. Rescaled (as it is with
+    # a loop, which lets the graph place the far end), the return would start from the
+    # outbound's -2 m at the far end and keep it all the way back (RMS 2 m), where the
+    # odometry's errors go from -2 m to +2 m (RMS 1.15 m).
     back = [c for c in seq if anchors[c.db_index] > 40.0][:1]
-    _, est_back = rescale_odometry(t, odom, anchors, a_odom, back, 0.01, 40.0, tied=False)
+    alone, est_back = rescale_odometry(t, odom, anchors, a_odom, back, 0.01, 40.0, tied=False)
+    np.testing.assert_allclose(alone, odom)
+    assert [p["rescaled"] for p in est_back.passes] == [False, False]
+    moved, est_back = rescale_odometry(t, odom, anchors, a_odom, back, 0.01, 40.0)
     assert [p["rescaled"] for p in est_back.passes] == [False, True]
+    ret = t > 40.0
+
+    def rms(p: np.ndarray) -> float:
+        return float(np.sqrt(np.mean((p[ret, 0, 3] - x[ret]) ** 2)))
+
+    assert rms(odom) == pytest.approx(1.15, abs=0.05)
+    assert rms(moved) == pytest.approx(2.0, abs=0.1)
     # A pair whose baseline measures less than 5 % is not used.
     wide = rescale_odometry(t, odom, anchors, a_odom, seq[:1], 0.03, 40.0)[1]
     assert [p["rescaled"] for p in wide.passes] == [False, False]

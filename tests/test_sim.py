@@ -15,6 +15,7 @@ from decod_rs.cli import main as cli_main
 from decod_rs.sim import (
     LegProfile,
     Simulation,
+    SlipProfile,
     build_scene,
     drift_odometry,
     generate,
@@ -473,11 +474,46 @@ def test_uneven_leg_profile_scales_each_leg(mode: str) -> None:
     assert abs(again.odom_poses[k_far, 0, 3] - dr.odom_poses[k_far, 0, 3]) < 0.01
 
 
+def test_slip_profile_changes_the_scale_along_the_way() -> None:
+    spec = TrajectorySpec(x_start_m=0.5, length_m=60.0, speed_mps=0.8, return_mode="reverse")
+    traj = Trajectory(spec, np.random.default_rng(0))
+    t = np.arange(0.0, traj.duration_s, 0.1)
+    gt, d = traj.poses(t), traj.travelled(t)
+    dr = odometry_for_profile(gt, d, "slip:-0.15,-0.01", np.random.default_rng(3))
+    assert dr.model == "slip"
+    # The local scale: odometry displacement over true displacement, per 2 m of travel (the
+    # axial walk, 1 cm/sqrt(m), is ~1 % of 2 m: 0.03 of slack on either side).
+    step = np.diff(gt[:, 0, 3])
+    moving = np.abs(step) > 1e-6
+    odo = np.diff(dr.odom_poses[:, 0, 3])
+    bins = np.floor(d[1:] / 2.0).astype(int)
+    ratios = np.array(
+        [
+            odo[(bins == b) & moving].sum() / step[(bins == b) & moving].sum()
+            for b in np.unique(bins[moving])
+            if np.abs(step[(bins == b) & moving].sum()) > 1.5
+        ]
+    )
+    assert ratios.size > 50
+    assert np.all(ratios > 1 - 0.15 - 0.03) and np.all(ratios < 1 - 0.01 + 0.03)
+    # Sections, not one scale: over 120 m of 3-15 m sections the stretches differ by more
+    # than a third of the range somewhere on each leg.
+    half = ratios.size // 2
+    for leg in (ratios[:half], ratios[half:]):
+        assert leg.max() - leg.min() > 0.05
+    # Seeded: the same generator gives the same odometry; the turnaround's error is read.
+    again = odometry_for_profile(gt, d, "slip:-0.15,-0.01", np.random.default_rng(3))
+    assert np.array_equal(again.odom_poses, dr.odom_poses)
+    k_far = int(np.argmax(gt[:, 0, 3]))
+    assert dr.turnaround_axial_m == pytest.approx(dr.odom_poses[k_far, 0, 3] - gt[k_far, 0, 3])
+
+
 def test_profiles_parse_and_feed_the_simulator() -> None:
     assert parse_profile("legs:-0.05, -0.15") == LegProfile(-0.05, -0.15)
     assert parse_profile("medium") == 1.7 and parse_profile(2.5) == 2.5
-    for bad in ("legs:-0.05", "legs:a,b", "legs:-1.5,0", "fast"):
-        with pytest.raises(ValueError, match="legs:"):
+    assert parse_profile(" slip:-0.15,-0.01") == SlipProfile(-0.15, -0.01)
+    for bad in ("legs:-0.05", "legs:a,b", "legs:-1.5,0", "fast", "slip:-0.1", "slip:0.1,-0.1"):
+        with pytest.raises(ValueError, match=r"legs:|slip:"):
             parse_profile(bad)
     sim = Simulation("pe", seed=1, length_m=10.0, speed_mps=1.0, drift="legs:-0.05,-0.15")
     meta = sim.metadata()["drift"]

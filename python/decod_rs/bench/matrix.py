@@ -118,8 +118,20 @@ UNEVEN_PROFILE = "legs:-0.05,-0.15"
 #: than the robot moves), the other sign of ``uneven``; fresh tier only.
 OVERLONG = "overlong"
 OVERLONG_PROFILE = "legs:0.05,0.15"
-#: Drift profiles made from ground truth, per leg: name -> (profile, the seed's salt).
-LEG_PROFILES = {UNEVEN: (UNEVEN_PROFILE, 1), OVERLONG: (OVERLONG_PROFILE, 2)}
+#: Odometry whose scale error changes every 3-15 m between -15 % and -1 % (wheels that slip
+#: more on some stretches, a LiDAR odometry that under-reads featureless ones more): no scale
+#: holds for a pass. In no tier's default profiles; ``--profiles slip`` runs it.
+SLIP = "slip"
+SLIP_PROFILE = "slip:-0.15,-0.01"
+#: Drift profiles made from ground truth, per leg or per section: name -> (profile, the seed's
+#: salt).
+LEG_PROFILES = {
+    UNEVEN: (UNEVEN_PROFILE, 1),
+    OVERLONG: (OVERLONG_PROFILE, 2),
+    SLIP: (SLIP_PROFILE, 3),
+}
+#: Every profile a cell can run (``--profiles``).
+PROFILES = (SYMMETRIC, UNEVEN, OVERLONG, SLIP, KISS)
 SYMMETRIC_ENDPOINT_FRACTION = 0.03
 FINE_TOLERANCE_M = 0.3
 #: A joint is seen on a pass if a landmark of that pass lies within this of it (m).
@@ -1102,6 +1114,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "(default: run_log's default)",
     )
     p.add_argument("--kiss", action="store_true", help="also KISS-ICP odometry (if installed)")
+    p.add_argument(
+        "--profiles",
+        default=None,
+        help=f"comma-separated drift profiles run in every cell instead of the tier's, of "
+        f"{', '.join(p for p in PROFILES if p != KISS)} (e.g. --profiles slip)",
+    )
     p.add_argument("--jobs", type=int, default=1, help="cells run in parallel")
     p.add_argument("--list", action="store_true", help="list the cells and exit")
     return p.parse_args(argv)
@@ -1113,6 +1131,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not cells:
         print(f"no cell of the {args.tier} tier matches {args.only!r}", file=sys.stderr)
         return 2
+    if args.profiles is not None:
+        chosen = tuple(p.strip() for p in args.profiles.split(",") if p.strip())
+        unknown = [p for p in chosen if p not in PROFILES or p == KISS]
+        if unknown or not chosen:
+            allowed = ", ".join(p for p in PROFILES if p != KISS)
+            print(f"--profiles: {unknown or args.profiles!r} not of {allowed}", file=sys.stderr)
+            return 2
+        cells = [replace(c, profiles=chosen) for c in cells]
     if args.list:
         for c in cells:
             held = " [held out]" if c.held_out else ""

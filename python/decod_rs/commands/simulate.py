@@ -37,7 +37,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--drift",
         default="medium",
         help=f"odometry endpoint error in metres, a preset {sorted(DRIFT_PRESETS)}, or scale "
-        "errors per leg 'legs:OUT,RET' (e.g. legs:-0.05,-0.15)",
+        "errors per leg 'legs:OUT,RET' (e.g. legs:-0.05,-0.15), or scale errors that change "
+        "every 3-15 m within 'slip:LO,HI' (e.g. slip:-0.15,-0.01)",
     )
     p.add_argument(
         "--scene-param",

@@ -19,7 +19,8 @@ Geometry overrides: ``simulate(..., scene_overrides={"radius_m": 0.5})`` (``deco
 :func:`scene_params` lists them); the sensor mount and a tunnel's floor follow the radius.
 
 Drift profiles (:mod:`decod_rs.sim.drift`): an endpoint error in metres or a preset, or
-per-leg scale errors ``"legs:-0.05,-0.15"``; :func:`odometry_for_profile` makes the odometry
+per-leg scale errors ``"legs:-0.05,-0.15"``, or scale errors changing along the way
+``"slip:-0.15,-0.01"``; :func:`odometry_for_profile` makes the odometry
 of any profile from ground truth without re-simulating the scans.
 
 Frames: world x = corridor axis from x = 0, z up, section centre at y = z = 0 (tunnel floors
@@ -54,6 +55,7 @@ from typing import TYPE_CHECKING, Any
 from decod_rs.sim.drift import (
     DRIFT_PRESETS,
     LegProfile,
+    SlipProfile,
     drift_odometry,
     odometry_for_profile,
     parse_profile,
@@ -86,6 +88,7 @@ __all__ = [
     "SimData",
     "SimResult",
     "Simulation",
+    "SlipProfile",
     "build_scene",
     "drift_odometry",
     "generate",

@@ -16,7 +16,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.progress import Progress
-from decod_rs.sim.drift import DriftResult, LegProfile, odometry_for_profile, parse_profile
+from decod_rs.sim.drift import (
+    DriftResult,
+    odometry_for_profile,
+    parse_profile,
+)
 from decod_rs.sim.fields import F64
 from decod_rs.sim.imu import ImuSamples, ImuSpec, simulate_imu
 from decod_rs.sim.lio import KissOdometry
@@ -47,6 +51,8 @@ DRIFT_MODELS = {
     "yaw/pitch random-walk bridges; functions of travelled distance",
     "legs": "per-leg scale errors (outbound, return) split at the far end + 1 cm/sqrt(m) "
     "axial and small yaw/pitch random walks; functions of travelled distance",
+    "slip": "scale errors of sections of 3-15 m (uniform in a range, blended over 0.5 m) + the "
+    "legs model's random walks; functions of travelled distance",
 }
 
 
@@ -108,8 +114,8 @@ class Simulation:
         self.t_s: F64 = np.arange(n_scans, dtype=np.float64) * SCAN_PERIOD_S
         self.gt_poses = self.traj.poses(self.t_s)
         parsed = parse_profile(drift)
-        self.drift_profile = parsed.text if isinstance(parsed, LegProfile) else str(drift)
-        self.drift_request_m: float | None = None if isinstance(parsed, LegProfile) else parsed
+        self.drift_profile = str(drift) if isinstance(parsed, float) else parsed.text
+        self.drift_request_m: float | None = parsed if isinstance(parsed, float) else None
         self.drift: DriftResult = odometry_for_profile(
             self.gt_poses,
             self.traj.travelled(self.t_s),
@@ -574,15 +580,17 @@ def simulate(
     ``drift`` is a drift profile (:mod:`decod_rs.sim.drift`): the odometry endpoint error in
     metres or a preset (``none``, ``low`` 0.2, ``medium`` 1.7, ``high`` 13.3), or per-leg scale
     errors ``"legs:OUT,RET"`` (``"legs:-0.05,-0.15"``: the odometry reports 95 % of the
-    outbound distance and 85 % of the return). ``scene_overrides`` change the scene builder's
-    parameters (``radius_m``, ``segment_length_m``, ``ring_width_m``, ``arch_spacing_m``, ...;
-    an unknown key is a ``ValueError`` listing the valid ones; the sensor mount follows the
-    radius, :func:`decod_rs.sim.scenes.defaults_for`). ``odometry="kiss-icp"`` replaces the
-    drift model by a real LiDAR odometry (KISS-ICP) run on the simulated scans (``drift`` is
-    then ignored). ``world_seed`` builds the scene from another seed than ``seed`` (default:
-    the same): two inspections of one world with their own noise and drift. ``mount_deg``:
-    the sensor's static mount, ``(roll, pitch)`` in degrees (pitch positive nose down), which
-    the scans, odometry, IMU and ground truth all carry (:class:`TrajectorySpec`).
+    outbound distance and 85 % of the return), or scale errors that change along the way
+    ``"slip:LO,HI"`` (sections of 3-15 m, each in ``[LO, HI]``). ``scene_overrides`` change
+    the scene builder's parameters (``radius_m``, ``segment_length_m``, ``ring_width_m``,
+    ``arch_spacing_m``, ...; an unknown key is a ``ValueError`` listing the valid ones; the
+    sensor mount follows the radius, :func:`decod_rs.sim.scenes.defaults_for`).
+    ``odometry="kiss-icp"`` replaces the drift model by a real LiDAR odometry (KISS-ICP) run
+    on the simulated scans (``drift`` is then ignored). ``world_seed`` builds the scene from
+    another seed than ``seed`` (default: the same): two inspections of one world with their
+    own noise and drift. ``mount_deg``: the sensor's static mount, ``(roll, pitch)`` in
+    degrees (pitch positive nose down), which the scans, odometry, IMU and ground truth all
+    carry (:class:`TrajectorySpec`).
     ``stops``: halts along the legs, ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return;
     :class:`TrajectorySpec`), as an inspection robot makes at defects.
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);

@@ -36,6 +36,13 @@ functions of the travelled distance ``d`` and seeded:
 With a one-way length ``L`` the axial error is ``OUT * L`` at the turnaround and
 ``(OUT - RET) * L`` at the end (``legs:-0.05,-0.15``: -5 % of ``L`` at the far end, ``+0.10
 L`` back at the start), plus the random walk.
+
+**Slip model** (``"slip:LO,HI"``, e.g. ``"slip:-0.15,-0.01"``): the scale error changes along
+the way, as wheels slip more on some stretches of a pipe than on others, or a LiDAR odometry
+under-reads featureless stretches more than those with fittings. The path is cut into sections
+of 3-15 m of travel (seeded), each with a scale error drawn uniformly in ``[LO, HI]``, blended
+over about half a metre; the random walks are the leg model's. No scale holds for a whole leg,
+so neither a scale per pass nor the far end's position describes the error.
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ DRIFT_PRESETS: dict[str, float] = {
 
 
 LEGS_PREFIX = "legs:"
+SLIP_PREFIX = "slip:"
 
 
 def resolve_drift(drift: float | str) -> float:
@@ -68,8 +76,9 @@ def resolve_drift(drift: float | str) -> float:
             drift = float(drift)
         except ValueError:
             raise ValueError(
-                f"drift must be metres, one of {sorted(DRIFT_PRESETS)} or "
-                f"'{LEGS_PREFIX}OUT,RET' (scale errors per leg), got {drift!r}"
+                f"drift must be metres, one of {sorted(DRIFT_PRESETS)}, "
+                f"'{LEGS_PREFIX}OUT,RET' (scale errors per leg) or '{SLIP_PREFIX}LO,HI' (scale "
+                f"errors changing along the way), got {drift!r}"
             ) from None
     value = float(drift)
     if not np.isfinite(value) or value < 0.0:
@@ -110,23 +119,57 @@ class LegProfile:
         return f"{LEGS_PREFIX}{self.outbound_scale:g},{self.return_scale:g}"
 
 
-def parse_profile(profile: float | str) -> float | LegProfile:
-    """A drift profile: an endpoint error in metres (a number or a ``DRIFT_PRESETS`` name) or
-    a :class:`LegProfile` from ``"legs:OUT,RET"``."""
-    if isinstance(profile, str) and profile.strip().startswith(LEGS_PREFIX):
-        body = profile.strip()[len(LEGS_PREFIX) :]
-        try:
-            out, ret = (float(v) for v in body.split(","))
-        except ValueError:
-            raise ValueError(
-                f"drift profile {profile!r}: expected '{LEGS_PREFIX}OUT,RET' with two scale "
-                "errors, e.g. 'legs:-0.05,-0.15'"
-            ) from None
-        if not (np.isfinite(out) and np.isfinite(ret) and out > -1.0 and ret > -1.0):
-            raise ValueError(
-                f"drift profile {profile!r}: scale errors must be finite and > -1, got {out}, {ret}"
-            )
-        return LegProfile(out, ret)
+@dataclass(frozen=True)
+class SlipProfile:
+    """The slip model's parameters (module doc): the range ``[low, high]`` of the sections'
+    scale errors, the sections' lengths in metres of travel, and the leg model's walks."""
+
+    low: float
+    high: float
+    section_m: tuple[float, float] = (3.0, 15.0)
+    blend_m: float = 0.5
+    axial_walk_m_per_sqrt_m: float = 0.01
+    yaw_walk_rad_per_sqrt_m: float = 1e-4
+    pitch_walk_rad_per_sqrt_m: float = 5e-5
+
+    @property
+    def text(self) -> str:
+        return f"{SLIP_PREFIX}{self.low:g},{self.high:g}"
+
+
+#: The profiles that are scale errors (not an endpoint error in metres).
+ScaleProfile = LegProfile | SlipProfile
+
+
+def _two_scales(profile: str, prefix: str, example: str) -> tuple[float, float]:
+    """The two scale errors after ``prefix`` (finite, > -1), or a ``ValueError`` naming the
+    profile."""
+    body = profile.strip()[len(prefix) :]
+    try:
+        a, b = (float(v) for v in body.split(","))
+    except ValueError:
+        raise ValueError(
+            f"drift profile {profile!r}: expected '{prefix}' and two scale errors, e.g. '{example}'"
+        ) from None
+    if not (np.isfinite(a) and np.isfinite(b) and a > -1.0 and b > -1.0):
+        raise ValueError(
+            f"drift profile {profile!r}: scale errors must be finite and > -1, got {a}, {b}"
+        )
+    return a, b
+
+
+def parse_profile(profile: float | str) -> float | ScaleProfile:
+    """A drift profile: an endpoint error in metres (a number or a ``DRIFT_PRESETS`` name),
+    a :class:`LegProfile` from ``"legs:OUT,RET"`` or a :class:`SlipProfile` from
+    ``"slip:LO,HI"`` (``LO <= HI``)."""
+    text = profile.strip() if isinstance(profile, str) else ""
+    if text.startswith(LEGS_PREFIX):
+        return LegProfile(*_two_scales(text, LEGS_PREFIX, "legs:-0.05,-0.15"))
+    if text.startswith(SLIP_PREFIX):
+        low, high = _two_scales(text, SLIP_PREFIX, "slip:-0.15,-0.01")
+        if low > high:
+            raise ValueError(f"drift profile {profile!r}: LO {low:g} is above HI {high:g}")
+        return SlipProfile(low, high)
     return resolve_drift(profile)
 
 
@@ -219,6 +262,50 @@ def leg_odometry(
     """Apply the leg-scale model (module doc) to ground-truth poses ``(N, 4, 4)`` with
     travelled distance ``travelled_m (N,)``; the outbound leg ends at ``split_index``
     (default: the scan farthest from the start)."""
+    n, split = _checked_split(gt_poses, travelled_m, split_index)
+    scale = np.where(np.arange(n) <= split, profile.outbound_scale, profile.return_scale)
+    return _scaled_odometry(gt_poses, travelled_m, scale, profile, rng, split)
+
+
+def slip_scale(profile: SlipProfile, travelled_m: F64, rng: np.random.Generator) -> F64:
+    """The slip model's scale error at each travelled distance (module doc): sections of
+    ``profile.section_m`` metres, each uniform in ``[low, high]``, blended over
+    ``profile.blend_m``."""
+    total = float(travelled_m[-1]) if travelled_m.size else 0.0
+    lo_m, hi_m = profile.section_m
+    ends = [0.0]
+    while ends[-1] <= total:
+        ends.append(ends[-1] + float(rng.uniform(lo_m, hi_m)))
+    values = rng.uniform(profile.low, profile.high, len(ends) - 1)
+    step = 0.05
+    grid = np.arange(0.0, ends[-1] + step, step)
+    raw = values[np.clip(np.searchsorted(ends, grid, side="right") - 1, 0, len(values) - 1)]
+    half = max(int(3 * profile.blend_m / step), 1)
+    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) * step / (profile.blend_m / 2)) ** 2)
+    padded = np.concatenate([np.full(half, raw[0]), raw, np.full(half, raw[-1])])
+    smooth = np.convolve(padded, kernel / kernel.sum(), mode="valid")
+    return np.asarray(np.interp(travelled_m, grid, smooth), dtype=np.float64)
+
+
+def slip_odometry(
+    gt_poses: F64,
+    travelled_m: F64,
+    profile: SlipProfile,
+    rng: np.random.Generator,
+    split_index: int | None = None,
+) -> DriftResult:
+    """Apply the slip model (module doc) to ground-truth poses ``(N, 4, 4)`` with travelled
+    distance ``travelled_m (N,)``; ``split_index`` only says where the turnaround's error is
+    read (default: the scan farthest from the start)."""
+    _, split = _checked_split(gt_poses, travelled_m, split_index)
+    scale = slip_scale(profile, travelled_m, rng) if travelled_m.size else travelled_m
+    return replace(
+        _scaled_odometry(gt_poses, travelled_m, scale, profile, rng, split), model="slip"
+    )
+
+
+def _checked_split(gt_poses: F64, travelled_m: F64, split_index: int | None) -> tuple[int, int]:
+    """The scan count and the last outbound scan, or a ``ValueError`` on bad shapes."""
     n = gt_poses.shape[0]
     if gt_poses.shape != (n, 4, 4) or travelled_m.shape != (n,):
         raise ValueError(
@@ -228,11 +315,24 @@ def leg_odometry(
     split = turnaround_index(gt_poses) if split_index is None else int(split_index)
     if not 0 <= split < max(n, 1):
         raise ValueError(f"split_index must be in [0, {n}), got {split}")
+    return n, split
+
+
+def _scaled_odometry(
+    gt_poses: F64,
+    travelled_m: F64,
+    scale: F64,
+    profile: ScaleProfile,
+    rng: np.random.Generator,
+    split: int,
+) -> DriftResult:
+    """Ground truth whose every displacement is scaled by ``1 + scale`` (per scan), plus the
+    profile's axial, yaw and pitch walks (module doc)."""
+    n = gt_poses.shape[0]
     if n < 2 or travelled_m[-1] <= 0:
         return DriftResult(gt_poses.copy(), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, "legs", split, 0.0)
     d = travelled_m
     steps = np.diff(gt_poses[:, :3, 3], axis=0, prepend=gt_poses[:1, :3, 3])
-    scale = np.where(np.arange(n) <= split, profile.outbound_scale, profile.return_scale)
     err = np.cumsum(scale[:, None] * steps, axis=0)
     err[:, 0] += profile.axial_walk_m_per_sqrt_m * _smoothed_walk(rng, d, 0.05, 1.0)
     yaw = profile.yaw_walk_rad_per_sqrt_m * _smoothed_walk(rng, d, 0.1, 5.0)
@@ -265,13 +365,16 @@ def odometry_for_profile(
     split_index: int | None = None,
 ) -> DriftResult:
     """Odometry poses from ground truth for a drift ``profile`` (module doc: metres or a
-    preset for the endpoint model, ``"legs:OUT,RET"`` for the leg-scale model), without
+    preset for the endpoint model, ``"legs:OUT,RET"`` for the leg-scale model, ``"slip:LO,HI"``
+    for the slip model), without
     simulating scans: e.g. several odometry TUM files for one simulated log (``decod run
     --odom-tum``). ``split_index``: the last outbound scan (default: the farthest from the
     start); the endpoint model reports the axial error there too."""
     parsed = parse_profile(profile)
     if isinstance(parsed, LegProfile):
         return leg_odometry(gt_poses, travelled_m, parsed, rng, split_index)
+    if isinstance(parsed, SlipProfile):
+        return slip_odometry(gt_poses, travelled_m, parsed, rng, split_index)
     res = drift_odometry(gt_poses, travelled_m, parsed, rng)
     split = turnaround_index(gt_poses) if split_index is None else int(split_index)
     axial = res.odom_poses[split, 0, 3] - gt_poses[split, 0, 3]
