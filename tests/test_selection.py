@@ -343,7 +343,7 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
     # The prior s = 1 is sigma 1 on the pass, not on each interval: it does not pull the one
     # measured window's 3 % scale towards 1 (it did by 0.4 % here, 1.3 % on a pe return).
     assert est_one.passes[0]["mean_scale"] == pytest.approx(1 / 0.9, rel=0.002)
-    # (the smoothness prior spreads the one window's scale over the pass to within 0.5 %)
+    # (one window, no spread chosen: its scale holds for the whole pass to within 0.5 %)
     out = t <= 40.0
     assert np.abs(one[out, 0, 3] - x[out]).max() < 0.05 * np.abs(odom[out, 0, 3] - x[out]).max()
     # Without a loop, rescaling the outbound alone would move the unmeasured return, whose
@@ -415,3 +415,39 @@ def test_the_less_well_measured_pass_gets_the_larger_odometry_sigmas() -> None:
     # Without a split there is one pass and nothing to weigh.
     est = rescale_odometry(t, odom, anchors, a_odom, seq, 0.01, None)[1]
     np.testing.assert_allclose(odometry_sigma_factors(t, est, None), 1.0)
+
+
+def _one_pass_pairs(scale_of_x: Any, sigma: float, seed: int) -> tuple[Any, list[Any]]:
+    """A 60 m pass, anchors every 1 m of true travel, each boundary (every 1.5 m) seen from the
+    two anchors before it with ``sigma`` of detection noise; the odometry reads each metre
+    ``scale_of_x(x)`` long. Odometry anchor positions and the (a, b, D_ab) pairs."""
+    rng = np.random.default_rng(seed)
+    x = np.arange(0.0, 60.0 + 1e-9, 1.0)
+    u = np.concatenate([[0.0], np.cumsum(np.diff(x) * scale_of_x(x[:-1] + 0.5))])
+    pairs = []
+    for joint in np.arange(1.25, 59.0, 1.5):
+        k = int(np.searchsorted(x, joint)) - 1  # the anchor at or before it
+        if k < 1:
+            continue
+        seen = [(a, joint - x[a] + rng.normal(0.0, sigma)) for a in (k - 1, k)]
+        (a, da), (b, db) = seen
+        pairs.append((a, b, da - db))
+    return u, pairs
+
+
+def test_the_scale_follows_sections_only_where_the_pairs_say_it_changes() -> None:
+    from decod_rs.odometry_scale import _pass_scales
+
+    # Constant scale: one scale for the pass (no spread chosen), within 0.5 %.
+    u, pairs = _one_pass_pairs(lambda x: np.full_like(x, 0.9), 0.01, 0)
+    scales, share, (tau, _) = _pass_scales(u, pairs, 0.01)
+    assert tau == 0.0 and share > 0.6
+    assert np.allclose(scales, 1 / 0.9, rtol=0.005)
+    # Odometry that reads 95 % of the first 30 m and 85 % of the rest (sections, as wheels
+    # slip more on one stretch): a spread is chosen, and the scales follow each section
+    # to within 1.5 % away from the change (one scale for the pass is 5 % off on each).
+    u, pairs = _one_pass_pairs(lambda x: np.where(x < 30.0, 0.95, 0.85), 0.01, 1)
+    scales, _, (tau, length) = _pass_scales(u, pairs, 0.01)
+    assert tau > 0.0 and length > 0.0
+    assert np.allclose(scales[:25], 1 / 0.95, rtol=0.015), scales[:25]
+    assert np.allclose(scales[35:], 1 / 0.85, rtol=0.015), scales[35:]

@@ -11,28 +11,34 @@ scale is in the gaps too.
 
 Per pass (outbound and return, split at the turnaround), with ``u_k`` the odometry's axial
 position of anchor ``k`` along the pass direction, one scale ``s_k`` per anchor interval is
-the weighted least-squares solution of
+the posterior mean of a linear Gaussian model:
 
-- every sequential pair ``(a, b)``: ``sum_{k=a}^{b-1} s_k (u_{k+1} - u_k) = D_ab``, the
-  LiDAR-measured axial displacement (the boundary seen from ``a`` minus the same boundary
+- every sequential pair ``(a, b)`` measures ``sum_{k=a}^{b-1} s_k (u_{k+1} - u_k) = D_ab``,
+  the LiDAR-measured axial displacement (the boundary seen from ``a`` minus the same boundary
   seen from ``b``, both rotated into the world with the odometry's attitude, which the walls
   constrain), sigma ``sqrt(2)`` times the measured detection noise;
-- smoothness ``s_{k+1} - s_k = 0`` with sigma ``SCALE_WALK_PER_M * sqrt(path)``: the scale
-  may wander by 0.1 % over 1 m of path, so each pass gets close to one measured scale and
-  the loops and sequential factors of the graph take up the local variation. Measured on the
-  simulated corridors (position RMSE after the graph): 1 %/m followed the measured windows
-  and extrapolated their local scale into the gaps (horseshoe 1.10 -> 0.45 m, worse than the
-  0.20 m without rescaling); 0.1 %/m: horseshoe 0.16, shield 0.10 (0.23 without), hume with
-  uneven drift 0.36 (1.12 without, odometry 1.31). 0.3 %/m, tried on the whole matrix (m97
-  against m95: the symmetric profile's scale error varies over ~5 m, and a 0.45 m hume pipe
-  of the fresh tier ended 1.0-1.1 % short over its first 10 m): corrected RMSE geometric
-  mean x0.989 with 25 rows better by more than 10 % and 24 worse, registry runs with every
-  joint within 1 % 72 of 95 -> 69 of 96, far end within 1 % 96 -> 97 of 98; no net gain;
-- a weak prior ``s_k = 1`` on the pass's scale as a whole (sigma 1: each of the ``n``
-  interval rows weighs ``1 / sqrt(n)``), which only matters where nothing else does. It
-  was sigma 1 per interval, i.e. ``1 / sqrt(n)`` on the pass's scale: with a pe coupler
-  tracked in two or three pairs it pulled a measured return scale of 1.179 +- 0.033 to
-  1.164 (88 intervals), 1.3 points of a pass the odometry under-reported by 15 %.
+- the scales are the pass's own scale (prior 1, sigma 1: it only matters where nothing else
+  does) plus a deviation per interval of spread ``tau``, correlated over ``length`` metres of
+  path (exponentially): the *slip model*. ``tau`` and ``length`` are chosen per pass by the
+  evidence (the marginal likelihood of the pairs) among ``SLIP_SPREADS`` x
+  ``SLIP_LENGTHS_M``; a spread must raise it by ``SLIP_EVIDENCE_MARGIN`` over none. Odometry
+  whose scale holds for a pass (one frontend on one kind of wall) gets ``tau = 0``: one
+  measured scale for the pass, the loops and sequential factors of the graph taking up the
+  rest. Odometry whose scale changes along the way (wheels that slip more on some stretches,
+  a LiDAR odometry that under-reads featureless ones more) gets the deviations its pairs
+  show; between measured windows they decay to the pass's scale over ``length``, so a gap
+  takes the pass's scale, not the last window's.
+
+  It replaced a smoothness prior on ``s_{k+1} - s_k`` of 0.1 % per metre of path, one fixed
+  walk for every log, which kept each pass close to one scale. Measured then: 1 %/m followed
+  the measured windows and carried their local scale into the gaps (horseshoe 1.10 -> 0.45 m,
+  worse than the 0.20 m without rescaling); 0.3 %/m on the whole matrix (m97 against m95) no
+  net gain. With the slip model (m152 against m147, the m88 logs): corrected RMSE geometric
+  mean x0.955 (28 rows better by more than 10 %, 15 worse), registry runs with every joint
+  within 1 % 75 -> 76 of 98, 11,407 -> 11,455 loops, none wrong; fresh tier (fresh20 against
+  fresh19) x0.991, registry 19 -> 21 of 30; the full tier under odometry that slips (scale
+  errors of sections of 3-15 m in [-15 %, -1 %], ``--profiles slip``, s3 against s1) x1.019,
+  registry 26 -> 31 of 47 runs.
 
 The scan odometry is then rescaled along the pass direction (rotations unchanged) and the
 pose graph starts from it. Scales are clipped to [0.5, 2]: a frontend that stalls (KISS-ICP
@@ -74,7 +80,6 @@ from decod_rs.maps import pass_of
 
 FloatArray = NDArray[np.float64]
 
-SCALE_WALK_PER_M = 0.001
 SCALE_LIMITS = (0.5, 2.0)
 #: A pass is rescaled when at least ``MIN_PAIRS`` pairs measure its scale to within
 #: ``MAX_SCALE_SIGMA`` (standard error of the pairs' ratios ``D_ab / (u_b - u_a)``, weighted
@@ -113,42 +118,54 @@ class ScaleEstimate:
     passes: list[dict[str, Any]] = field(default_factory=list)
 
 
+#: The slip model's candidates (module docs): the spread ``tau`` of the interval scales
+#: about the pass's own scale and their correlation length along the path (m).
+SLIP_SPREADS = (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.08)
+SLIP_LENGTHS_M = (2.0, 5.0, 15.0)
+#: A spread above 0 must raise the evidence by this much (natural log) over no spread: the
+#: price of one more parameter (BIC-like with a handful of pairs).
+SLIP_EVIDENCE_MARGIN = 2.0
+
+
 def _pass_scales(
     u: FloatArray, pairs: list[tuple[int, int, float]], sigma_m: float
-) -> tuple[FloatArray, float]:
-    """Scales of the ``len(u) - 1`` intervals and the measured share of the distance."""
+) -> tuple[FloatArray, float, tuple[float, float]]:
+    """Scales of the ``len(u) - 1`` intervals, the measured share of the distance and the
+    chosen ``(tau, length)`` of the slip model (module docs)."""
     n = u.size - 1
     du = np.diff(u)
-    rows: list[FloatArray] = []
-    rhs: list[float] = []
-    weights: list[float] = []
     covered = np.zeros(n, dtype=bool)
-    for a, b, d in pairs:
-        row = np.zeros(n)
-        row[a:b] = du[a:b]
-        rows.append(row)
-        rhs.append(d)
-        weights.append(1.0 / (np.sqrt(2.0) * sigma_m))
+    a_mat = np.zeros((len(pairs), n))
+    y = np.zeros(len(pairs))
+    for i, (a, b, d) in enumerate(pairs):
+        a_mat[i, a:b] = du[a:b]
+        y[i] = d
         covered[a:b] = True
-    for k in range(n - 1):
-        row = np.zeros(n)
-        row[k], row[k + 1] = -1.0, 1.0
-        path = max(abs(du[k]) + abs(du[k + 1]), 1e-3) / 2.0
-        rows.append(row)
-        rhs.append(0.0)
-        weights.append(1.0 / (SCALE_WALK_PER_M * np.sqrt(path)))
-    for k in range(n):
-        row = np.zeros(n)
-        row[k] = 1.0
-        rows.append(row)
-        rhs.append(1.0)
-        weights.append(1.0 / np.sqrt(n))  # sigma 1 on the pass's scale (module docs)
-    w = np.asarray(weights)
-    a_mat = np.asarray(rows) * w[:, None]
-    scales, *_ = np.linalg.lstsq(a_mat, np.asarray(rhs) * w, rcond=None)
     total = float(np.abs(du).sum())
     share = float(np.abs(du[covered]).sum() / total) if total > 0 else 0.0
-    return np.clip(scales, *SCALE_LIMITS), share
+    if not pairs:
+        return np.ones(n), share, (0.0, 0.0)
+    path = np.cumsum(np.abs(du)) - 0.5 * np.abs(du)
+    gap = np.abs(path[:, None] - path[None, :])
+    noise = np.eye(len(pairs)) * 2.0 * sigma_m**2
+    residual = y - a_mat.sum(axis=1)  # against every scale 1
+    best: tuple[float, FloatArray, tuple[float, float]] | None = None
+    for tau in SLIP_SPREADS:
+        for length in SLIP_LENGTHS_M if tau > 0 else SLIP_LENGTHS_M[:1]:
+            prior = 1.0 + tau**2 * np.exp(-gap / length)  # sigma 1 on the pass's scale
+            c = a_mat @ prior @ a_mat.T + noise
+            sign, logdet = np.linalg.slogdet(c)
+            if sign <= 0:
+                continue
+            solved = np.linalg.solve(c, residual)
+            evidence = -0.5 * (residual @ solved + logdet)
+            if tau > 0:
+                evidence -= SLIP_EVIDENCE_MARGIN
+            if best is None or evidence > best[0]:
+                best = (evidence, 1.0 + prior @ a_mat.T @ solved, (tau, length if tau else 0.0))
+    if best is None:
+        return np.ones(n), share, (0.0, 0.0)
+    return np.clip(best[1], *SCALE_LIMITS), share, best[2]
 
 
 def _measured_scale(
@@ -251,6 +268,7 @@ class _Pass:
     direction: FloatArray | None = None
     scales: FloatArray = field(default_factory=lambda: np.ones(0))
     pairs: int = 0
+    slip: tuple[float, float] = (0.0, 0.0)
     ratio: float = 1.0
     error: float = float("inf")
     share: float = 0.0
@@ -265,6 +283,8 @@ class _Pass:
             "measured_scale_sigma": self.error,
             "measured_share": self.share,
             "rescaled": self.measured,
+            "scale_spread": self.slip[0],
+            "scale_length_m": self.slip[1],
         }
 
 
@@ -298,7 +318,7 @@ def _measure_pass(
         world_b = anchor_odom[c.query_index, :3, :3] @ c.query_origin
         d = float((world_a - world_b) @ p.direction)
         pairs.append((min(a, b), max(a, b), d if b > a else -d))
-    p.scales, p.share = _pass_scales(u, pairs, sigma_m)
+    p.scales, p.share, p.slip = _pass_scales(u, pairs, sigma_m)
     p.ratio, p.error = _measured_scale(u, pairs, sigma_m)
     p.pairs = len(pairs)
     p.measured = len(pairs) >= MIN_PAIRS and p.error <= MAX_SCALE_SIGMA
