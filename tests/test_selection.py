@@ -378,6 +378,35 @@ def test_tracked_boundaries_recover_each_pass_scale() -> None:
     assert [p["mean_scale"] for p in est.passes] == pytest.approx([1 / 0.9, 1 / 0.8], rel=0.01)
 
 
+def test_a_pass_measured_alone_is_stitched_on_but_not_output() -> None:
+    """No loop, only the return's scale measured: the output is the odometry (rescaling the
+    return alone would keep the outbound's far-end error all the way back), but rebuilt
+    submaps are stitched on the return rescaled, where only its own geometry counts (a 10 m
+    shield with the forward sensor then closes its loops in the rebuilt round)."""
+    from decod_rs.config import load_config
+    from decod_rs.sequential import SequentialFactors
+    from decod_rs.stages.solve import optimise
+
+    t, truth, odom, anchors, _, seq = _out_and_back_tracks()
+    back = [c for c in seq if anchors[c.db_index] > 40.0][:3]
+    factors = SequentialFactors(back, 0.01, len(back), {})
+    ex = SimpleNamespace(anchor_stamps=list(anchors))
+    cfg = load_config(preset="pipe")
+    correction, scale, _, stitch = optimise((t, odom), ex, 40.0, list(back), factors, cfg)  # type: ignore[arg-type]
+    assert scale is not None and [p["rescaled"] for p in scale.passes] == [False, False]
+    np.testing.assert_allclose(correction.poses[:, :3, 3], odom[:, :3, 3], atol=1e-6)
+    assert stitch is not None
+    ret = t > 40.0
+    # The return as stitched: its true 20 m to within 2 % (the odometry's reads 16 m).
+    travel = float(np.abs(np.diff(stitch[ret, 0, 3])).sum())
+    assert travel == pytest.approx(float(np.abs(np.diff(truth[ret, 0, 3])).sum()), rel=0.02)
+    assert float(np.abs(np.diff(odom[ret, 0, 3])).sum()) < 0.85 * travel
+    # With a loop the passes are tied: no separate stitching.
+    loop = replace(back[0], kind="loop")
+    *_, tied_stitch = optimise((t, odom), ex, 40.0, [*back, loop], factors, cfg)  # type: ignore[arg-type]
+    assert tied_stitch is None
+
+
 def test_the_less_well_measured_pass_gets_the_larger_odometry_sigmas() -> None:
     from decod_rs.odometry_scale import (
         UNMEASURED_SIGMA_FACTOR,

@@ -72,12 +72,12 @@ def rebuilt(
     stitched_on = scans[1]  # the first submaps were stitched on the odometry
     decisions: list[RebuildDecision] = []
     while len(decisions) < MAX_ROUNDS:
-        decision = rebuild_decision(stitched_on, solved.correction.poses, cfg)
+        decision = rebuild_decision(stitched_on, solved.stitching, cfg)
         if not decision.needed:
             decisions.append(decision)
             break
-        ex2 = rebuild(extraction, cfg, solved.correction.poses, progress)
-        matched2 = match_and_select(ex2, cfg, mode, *scans, link_frame=solved.correction.poses)
+        ex2 = rebuild(extraction, cfg, solved.stitching, progress)
+        matched2 = match_and_select(ex2, cfg, mode, *scans, link_frame=solved.stitching)
         matched2, solved2 = solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
         decision = replace(
             decision,
@@ -87,6 +87,6 @@ def rebuilt(
         decisions.append(decision)
         if not decision.kept:
             break
-        stitched_on = solved.correction.poses
+        stitched_on = solved.stitching
         ex, matched, solved = ex2, matched2, solved2
     return ex, matched, solved, decisions

@@ -151,13 +151,37 @@ def optimise(
     seq: SequentialFactors | None,
     cfg: Config,
     gap_factors: FloatArray | None = None,
-) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
+) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray, FloatArray | None]:
     """The pose graph, started from the odometry rescaled by the tracked boundaries
     (:mod:`decod_rs.odometry_scale`) when there are sequential factors; also returns the
-    scan odometry the graph started from."""
+    scan odometry the graph started from, and the trajectory to stitch rebuilt submaps on
+    when it differs from the corrected one (None otherwise): without a loop, a pass whose
+    scale was measured but that is not rescaled alone in the output (it would move the other
+    pass) is still rescaled for stitching, where only its own geometry counts."""
+    tied = any(c.kind == "loop" for c in constraints)
+    correction, scale, start = _graph(scans, ex, split, constraints, seq, cfg, gap_factors, tied)
+    stitch = None
+    if not tied and scale is not None and not any(p["rescaled"] for p in scale.passes):
+        alone = _graph(scans, ex, split, constraints, seq, cfg, gap_factors, True)
+        if alone[1] is not None and any(p["rescaled"] for p in alone[1].passes):
+            stitch = alone[0].poses
+    return correction, scale, start, stitch
+
+
+def _graph(
+    scans: tuple[FloatArray, FloatArray],
+    ex: SubmapLandmarks,
+    split: float | None,
+    constraints: list[LoopConstraint],
+    seq: SequentialFactors | None,
+    cfg: Config,
+    gap_factors: FloatArray | None,
+    tied: bool,
+) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
+    """:func:`optimise`'s graph, the passes rescaled as when loops tie them (``tied``) or
+    not."""
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
     start, scale = scans[1], None
-    tied = any(c.kind == "loop" for c in constraints)
     if seq is not None and seq.constraints:
         anchor_odom = interpolate_poses(*scans, anchor_stamps)
         start, scale = rescale_odometry(
@@ -193,9 +217,17 @@ class Solved:
     correction: CorrectionResult
     scale: ScaleEstimate | None
     start: FloatArray
+    #: The trajectory to stitch rebuilt submaps on, where it is not ``correction``'s
+    #: (:func:`optimise`).
+    stitch: FloatArray | None = None
     #: The views' spread across the axis and whether the factors left the height to the
     #: odometry.
     cross: CrossAxis | None = None
+
+    @property
+    def stitching(self) -> FloatArray:
+        """The scan poses rebuilt submaps are stitched on (:mod:`decod_rs.stages.refine`)."""
+        return self.correction.poses if self.stitch is None else self.stitch
 
 
 def solve(
