@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -124,15 +126,14 @@ def test_the_fresh_tier_is_held_out_and_outside_the_full_tier() -> None:
     assert all(c.profiles == (SYMMETRIC, UNEVEN, OVERLONG) for c in fresh)
 
 
-@pytest.mark.parametrize(("profile", "scales"), [(UNEVEN, (0.95, 0.85)), (OVERLONG, (1.05, 1.15))])
-def test_leg_profiles_scale_each_leg_of_the_odometry(tmp_path, profile, scales) -> None:
-    """``uneven`` and ``overlong`` odometry, made from a cell's ground truth: each leg's
-    travel is the true one times the profile's scale (the axial random walk of the drift
-    model, 1 cm/sqrt(m), is far inside 1 %)."""
+def _ground_truth_only(tmp_path: Path, length_m: float) -> tuple[Any, Any, int, Path]:
+    """A cell's ``sim`` directory with only what odometry profiles are made from (``gt.tum``,
+    ``joints.json``), for an out-and-back of ``length_m`` at 1 m/s: the trajectory, its
+    stamps, the last outbound scan and the directory."""
     from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
-    from decod_rs.tum import read_tum, write_tum
+    from decod_rs.tum import write_tum
 
-    spec = TrajectorySpec(x_start_m=0.5, length_m=20.0, speed_mps=1.0, return_mode="reverse")
+    spec = TrajectorySpec(x_start_m=0.5, length_m=length_m, speed_mps=1.0, return_mode="reverse")
     traj = Trajectory(spec, np.random.default_rng(0))
     stamps = np.arange(0.0, traj.duration_s, 0.1)
     split = int(np.argmax(traj.travelled(stamps) >= traj.travelled(traj.t_far_arrive)))
@@ -141,6 +142,17 @@ def test_leg_profiles_scale_each_leg_of_the_odometry(tmp_path, profile, scales) 
     write_tum(sim / "gt.tum", stamps, traj.poses(stamps))
     meta = {"trajectory": spec.as_dict(), "time_split": {"outbound_scans": [0, split]}}
     (sim / "joints.json").write_text(json.dumps(meta), encoding="utf-8")
+    return traj, stamps, split, sim
+
+
+@pytest.mark.parametrize(("profile", "scales"), [(UNEVEN, (0.95, 0.85)), (OVERLONG, (1.05, 1.15))])
+def test_leg_profiles_scale_each_leg_of_the_odometry(tmp_path, profile, scales) -> None:
+    """``uneven`` and ``overlong`` odometry, made from a cell's ground truth: each leg's
+    travel is the true one times the profile's scale (the axial random walk of the drift
+    model, 1 cm/sqrt(m), is far inside 1 %)."""
+    from decod_rs.tum import read_tum
+
+    traj, stamps, split, sim = _ground_truth_only(tmp_path, 20.0)
     cell = tier_cells("fresh")[0]
 
     _, odom = read_tum(profile_odometry(cell, sim, profile, tmp_path / "odom.tum"))
@@ -157,8 +169,7 @@ def test_slip_profile_and_the_profiles_option(tmp_path, capsys) -> None:
     """``--profiles slip`` runs the slip profile in every cell (``--list`` shows it); the
     slip odometry of a cell's ground truth reads between 85 % and 99 % of each 2 m stretch;
     an unknown profile is refused before anything runs."""
-    from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
-    from decod_rs.tum import read_tum, write_tum
+    from decod_rs.tum import read_tum
 
     assert (
         main(["--out", str(tmp_path / "m"), "--tier", "quick", "--profiles", SLIP, "--list"]) == 0
@@ -168,15 +179,7 @@ def test_slip_profile_and_the_profiles_option(tmp_path, capsys) -> None:
     assert main(["--out", str(tmp_path / "m"), "--profiles", "slip,sideways"]) == 2
     assert "sideways" in capsys.readouterr().err and not (tmp_path / "m").exists()
 
-    spec = TrajectorySpec(x_start_m=0.5, length_m=30.0, speed_mps=1.0, return_mode="reverse")
-    traj = Trajectory(spec, np.random.default_rng(0))
-    stamps = np.arange(0.0, traj.duration_s, 0.1)
-    split = int(np.argmax(traj.travelled(stamps) >= traj.travelled(traj.t_far_arrive)))
-    sim = tmp_path / "sim"
-    sim.mkdir()
-    write_tum(sim / "gt.tum", stamps, traj.poses(stamps))
-    meta = {"trajectory": spec.as_dict(), "time_split": {"outbound_scans": [0, split]}}
-    (sim / "joints.json").write_text(json.dumps(meta), encoding="utf-8")
+    traj, stamps, _, sim = _ground_truth_only(tmp_path, 30.0)
     _, odom = read_tum(profile_odometry(tier_cells("full")[0], sim, SLIP, tmp_path / "o.tum"))
     true_x, x = traj.axial(stamps), odom[:, 0, 3]
     d = traj.travelled(stamps)
