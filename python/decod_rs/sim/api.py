@@ -577,11 +577,8 @@ def simulate(
     ``/odom``, ``/imu``), ``out_dir/gt.tum``, ``out_dir/odom.tum`` and ``out_dir/joints.json``.
 
     ``return_mode`` defaults to the scene's (``reverse`` for pipes, ``turn`` for tunnels);
-    ``drift`` is a drift profile (:mod:`decod_rs.sim.drift`): the odometry endpoint error in
-    metres or a preset (``none``, ``low`` 0.2, ``medium`` 1.7, ``high`` 13.3), or per-leg scale
-    errors ``"legs:OUT,RET"`` (``"legs:-0.05,-0.15"``: the odometry reports 95 % of the
-    outbound distance and 85 % of the return), or scale errors that change along the way
-    ``"slip:LO,HI"`` (sections of 3-15 m, each in ``[LO, HI]``). ``scene_overrides`` change
+    ``drift`` is a drift profile (:mod:`decod_rs.sim.drift`): an endpoint error in metres or a
+    preset, ``"legs:OUT,RET"`` or ``"slip:LO,HI"``. ``scene_overrides`` change
     the scene builder's parameters (``radius_m``, ``segment_length_m``, ``ring_width_m``,
     ``arch_spacing_m``, ...; an unknown key is a ``ValueError`` listing the valid ones; the
     sensor mount follows the radius, :func:`decod_rs.sim.scenes.defaults_for`).
