@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -165,18 +166,24 @@ def test_a_crawler_that_stops_along_the_way_is_corrected(tmp_path: Path) -> None
     # on: loops found and right, the standing submaps adding no wrong one, and the position
     # RMSE cut by the 80 % of issue 10 (held-out runs of this kind: 92-99 % under this drift;
     # this one: 45 loops, RMSE 0.81 -> 0.013 m).
+    _corrected_crawler_run(
+        tmp_path, seed=21, drift="legs:-0.05,-0.15", stops=((0.0, 0.35, 15.0), (1.0, 0.5, 10.0))
+    )
+
+
+def _corrected_crawler_run(tmp_path: Path, **sim_args: Any) -> dict:
+    """A 20 m hume pipe at 0.3 m/s seen by the forward sensor, reversing, simulated with
+    ``sim_args`` and run: at least 10 loops, none wrong, RMSE cut by 80 %. Its report."""
     sim = tmp_path / "sim"
     simulate(
         "hume",
         sim,
-        seed=21,
         sensor="avia",
         return_mode="reverse",
         length_m=20.0,
         speed_mps=0.3,
-        drift="legs:-0.05,-0.15",
-        stops=((0.0, 0.35, 15.0), (1.0, 0.5, 10.0)),
         progress=False,
+        **sim_args,
     )
     result, report = _run(sim, tmp_path / "run")
     fine, coarse = result["loops"]["fine"], result["loops"]["coarse"]
@@ -184,6 +191,7 @@ def test_a_crawler_that_stops_along_the_way_is_corrected(tmp_path: Path) -> None
     assert fine["false_positives"] == 0 and coarse["false_positives"] == 0, fine
     traj = result["trajectory"]
     assert traj["corrected"]["rmse_m"] < 0.2 * traj["odometry"]["rmse_m"], traj
+    return report
 
 
 def test_odometry_that_slips_stretch_by_stretch_is_corrected(tmp_path: Path) -> None:
@@ -191,24 +199,7 @@ def test_odometry_that_slips_stretch_by_stretch_is_corrected(tmp_path: Path) -> 
     # more on some stretches): no scale holds for a pass. Nothing in decod was chosen on
     # such a run (the slip profile came after the defaults; on the full tier's logs under it,
     # RMSE -80 % or more in 46 of 49 runs). This one: 31 loops, RMSE 1.22 -> 0.06 m.
-    sim = tmp_path / "sim"
-    simulate(
-        "hume",
-        sim,
-        seed=23,
-        sensor="avia",
-        return_mode="reverse",
-        length_m=20.0,
-        speed_mps=0.3,
-        drift="slip:-0.15,-0.01",
-        progress=False,
-    )
-    result, report = _run(sim, tmp_path / "run")
-    fine, coarse = result["loops"]["fine"], result["loops"]["coarse"]
-    assert fine["accepted"] >= 10, (fine, report["query_rejections"])
-    assert fine["false_positives"] == 0 and coarse["false_positives"] == 0, fine
-    traj = result["trajectory"]
-    assert traj["corrected"]["rmse_m"] < 0.2 * traj["odometry"]["rmse_m"], traj
+    report = _corrected_crawler_run(tmp_path, seed=23, drift="slip:-0.15,-0.01")
     # Both passes measured and rescaled, and the report says what spread their pairs chose.
     passes = report["sequential"]["odometry_scale"]
     assert all(p["rescaled"] and {"scale_spread", "scale_length_m"} <= p.keys() for p in passes)

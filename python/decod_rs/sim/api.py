@@ -16,11 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.progress import Progress
-from decod_rs.sim.drift import (
-    DriftResult,
-    odometry_for_profile,
-    parse_profile,
-)
+from decod_rs.sim.drift import DriftResult, odometry_for_profile, parse_profile
 from decod_rs.sim.fields import F64
 from decod_rs.sim.imu import ImuSamples, ImuSpec, simulate_imu
 from decod_rs.sim.lio import KissOdometry

@@ -298,7 +298,7 @@ def slip_odometry(
     distance ``travelled_m (N,)``; ``split_index`` only says where the turnaround's error is
     read (default: the scan farthest from the start)."""
     _, split = _checked_split(gt_poses, travelled_m, split_index)
-    scale = slip_scale(profile, travelled_m, rng) if travelled_m.size else travelled_m
+    scale = slip_scale(profile, travelled_m, rng)
     return replace(
         _scaled_odometry(gt_poses, travelled_m, scale, profile, rng, split), model="slip"
     )

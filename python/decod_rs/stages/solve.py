@@ -158,54 +158,46 @@ def optimise(
     when it differs from the corrected one (None otherwise): without a loop, a pass whose
     scale was measured but that is not rescaled alone in the output (it would move the other
     pass) is still rescaled for stitching, where only its own geometry counts."""
+    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
+
+    def graph(tied: bool) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
+        """The graph with the passes rescaled as when loops tie them (``tied``) or not."""
+        start, scale = scans[1], None
+        if seq is not None and seq.constraints:
+            anchor_odom = interpolate_poses(*scans, anchor_stamps)
+            start, scale = rescale_odometry(
+                scans[0],
+                scans[1],
+                anchor_stamps,
+                anchor_odom,
+                seq.constraints,
+                seq.sigma_m,
+                split,
+                tied,
+            )
+        # Nothing measured the degenerate axis: the odometry stands (paper Alg. 1, "keep
+        # X* = X_odom if L is empty"); a few sequential factors alone only add noise.
+        factors_in = constraints if _rescaled(scale) or tied else []
+        factors = None if scale is None else odometry_sigma_factors(scans[0], scale, split)
+        if gap_factors is not None:  # odometry gaps bridged by a weak factor (decod_rs.ingest)
+            factors = gap_factors if factors is None else factors * gap_factors
+        correction = correct_trajectory(
+            scans[0], start, anchor_stamps, factors_in, cfg.graph, sigma_factors=factors
+        )
+        return correction, scale, start
+
     tied = any(c.kind == "loop" for c in constraints)
-    correction, scale, start = _graph(scans, ex, split, constraints, seq, cfg, gap_factors, tied)
+    correction, scale, start = graph(tied)
     stitch = None
-    if not tied and scale is not None and not any(p["rescaled"] for p in scale.passes):
-        alone = _graph(scans, ex, split, constraints, seq, cfg, gap_factors, True)
-        if alone[1] is not None and any(p["rescaled"] for p in alone[1].passes):
-            stitch = alone[0].poses
+    if not tied and scale is not None and not _rescaled(scale):
+        alone, alone_scale, _ = graph(True)
+        stitch = alone.poses if _rescaled(alone_scale) else None
     return correction, scale, start, stitch
 
 
-def _graph(
-    scans: tuple[FloatArray, FloatArray],
-    ex: SubmapLandmarks,
-    split: float | None,
-    constraints: list[LoopConstraint],
-    seq: SequentialFactors | None,
-    cfg: Config,
-    gap_factors: FloatArray | None,
-    tied: bool,
-) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
-    """:func:`optimise`'s graph, the passes rescaled as when loops tie them (``tied``) or
-    not."""
-    anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
-    start, scale = scans[1], None
-    if seq is not None and seq.constraints:
-        anchor_odom = interpolate_poses(*scans, anchor_stamps)
-        start, scale = rescale_odometry(
-            scans[0],
-            scans[1],
-            anchor_stamps,
-            anchor_odom,
-            seq.constraints,
-            seq.sigma_m,
-            split,
-            tied,
-        )
-    rescaled = scale is not None and any(p["rescaled"] for p in scale.passes)
-    if not rescaled and not tied:
-        # Nothing measured the degenerate axis: the odometry stands (paper Alg. 1, "keep
-        # X* = X_odom if L is empty"); a few sequential factors alone only add noise.
-        constraints = []
-    factors = None if scale is None else odometry_sigma_factors(scans[0], scale, split)
-    if gap_factors is not None:  # odometry gaps bridged by a weak factor (decod_rs.ingest)
-        factors = gap_factors if factors is None else factors * gap_factors
-    correction = correct_trajectory(
-        scans[0], start, anchor_stamps, constraints, cfg.graph, sigma_factors=factors
-    )
-    return correction, scale, start
+def _rescaled(scale: ScaleEstimate | None) -> bool:
+    """Whether some pass had its odometry scale measured and applied."""
+    return scale is not None and any(p["rescaled"] for p in scale.passes)
 
 
 @dataclass(frozen=True)
