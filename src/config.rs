@@ -69,7 +69,11 @@ pub struct SubmapConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AxisConfig {
-    /// Minimum ratio of the two largest singular values (elongation check).
+    /// Minimum ratio of the two largest singular values (elongation check): at or above it the
+    /// principal direction is the axis; below it the cloud is too short along its corridor
+    /// for PCA to say (a narrow forward sensor in a pipe: ratios 1.0-1.1), and it is a
+    /// corridor only along the sensor's heading or a principal direction that passes the
+    /// contour test (`extract::short_corridor`, not in the paper).
     pub min_elongation: f64,
     /// Gauss–Newton refinements of the PCA axis from the contour fit (`axis::refine_axis`;
     /// not in the paper). On the 3 m test pipe tilted 20 deg: PCA 0.13 deg error, 2 steps
