@@ -109,26 +109,30 @@ fn run_means<K: PartialEq>(rows: &[(K, [f32; 3])]) -> Vec<[f32; 3]> {
     out
 }
 
-/// Every point of `scans` kept by the range window (closer than `sqrt(min_r2)` to its own
-/// sensor or farther than `sqrt(max_r2)` from the anchor: dropped), in the anchor frame,
-/// with its voxel key.
+/// Every `stride`-th point of `scans` (from offset `k % stride` in scan `k`) kept by the
+/// range window (closer than `sqrt(min_r2)` to its own sensor or farther than `sqrt(max_r2)`
+/// from the anchor: dropped), in the anchor frame, with its voxel key.
 fn accumulate<K>(
     scans: &[Scan],
     anchor_from_world: &Pose,
-    min_r2: f64,
-    max_r2: f64,
+    (min_r2, max_r2): (f64, f64),
+    stride: usize,
     key: impl Fn(&Vector3<f64>) -> K,
 ) -> Vec<(K, [f32; 3])> {
-    let total: usize = scans.iter().map(|s| s.points_in_body.len()).sum();
+    let stride = stride.max(1);
+    let total: usize = scans
+        .iter()
+        .map(|s| s.points_in_body.len() / stride + 1)
+        .sum();
     let mut rows = Vec::with_capacity(total);
-    for scan in scans {
+    for (k, scan) in scans.iter().enumerate() {
         let anchor_from_body = (anchor_from_world * scan.world_from_body).to_homogeneous();
         let rotation = anchor_from_body.fixed_view::<3, 3>(0, 0).into_owned();
         let translation = anchor_from_body.fixed_view::<3, 1>(0, 3).into_owned();
         // A point farther from its sensor than the range plus the sensor's distance from the
         // anchor (and a micrometre for rounding) lies beyond the range from the anchor too.
         let beyond = (max_r2.sqrt() + translation.norm() + 1e-6).powi(2);
-        for p in &scan.points_in_body {
+        for p in scan.points_in_body.iter().skip(k % stride).step_by(stride) {
             let body = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
             let r2 = body.norm_squared();
             if r2 < min_r2 || r2 > beyond {
@@ -215,13 +219,14 @@ impl Submap {
         let (voxel, max_range) = (cfg.voxel_m, cfg.max_range_m);
         let (min_r2, max_r2) = (cfg.min_range_m.powi(2), max_range.powi(2));
         let keys = WindowKeys::new(voxel, max_range);
+        let (ranges, stride) = ((min_r2, max_r2), cfg.point_stride);
         let points_in_anchor = if keys.fits_u32() {
-            let rows = accumulate(scans, &anchor_from_world, min_r2, max_r2, |q| {
+            let rows = accumulate(scans, &anchor_from_world, ranges, stride, |q| {
                 keys.key(q.x, q.y, q.z)
             });
             sorted_means(rows, 3 * keys.bits)
         } else {
-            let rows = accumulate(scans, &anchor_from_world, min_r2, max_r2, |q| {
+            let rows = accumulate(scans, &anchor_from_world, ranges, stride, |q| {
                 voxel_key_of(q.x, q.y, q.z, voxel)
             });
             voxel_centroids(rows)
@@ -525,17 +530,22 @@ mod tests {
         // column, columns around), moved and turned: every voxel's centroid equals the mean
         // of its points computed directly (the cache only regroups the sums), and points
         // beyond the range window are dropped.
+        // With a point stride, the same of every third point, from an offset that moves on
+        // by one each scan.
         for max_range in [DecodConfig::tunnel().submap.max_range_m, 400.0] {
-            accumulation_equals_the_plain_voxel_means(max_range);
+            for stride in [1, 3] {
+                accumulation_equals_the_plain_voxel_means(max_range, stride);
+            }
         }
     }
 
     /// With the tunnel preset's range window the keys take 3 x 10 bits (16-byte rows); with
     /// 400 m, 3 x 14 (the wide path).
-    fn accumulation_equals_the_plain_voxel_means(max_range: f64) {
+    fn accumulation_equals_the_plain_voxel_means(max_range: f64, stride: usize) {
         let mut cfg = DecodConfig::tunnel().submap;
         cfg.voxel_m = 0.07;
         cfg.max_range_m = max_range;
+        cfg.point_stride = stride;
         assert_eq!(
             WindowKeys::new(cfg.voxel_m, max_range).fits_u32(),
             max_range < 100.0
@@ -567,8 +577,13 @@ mod tests {
         let anchor_from_world = scans[1].world_from_body.inverse();
         let mut reference: std::collections::BTreeMap<u64, ([f64; 3], u32)> =
             std::collections::BTreeMap::new();
-        for s in &scans {
-            for p in &s.points_in_body {
+        let mut kept = 0;
+        for (k, s) in scans.iter().enumerate() {
+            for (i, p) in s.points_in_body.iter().enumerate() {
+                if i % stride != k % stride {
+                    continue;
+                }
+                kept += 1;
                 let body = Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
                 let q = anchor_from_world * s.world_from_body * body;
                 if body.coords.norm() < cfg.min_range_m || q.coords.norm() > cfg.max_range_m {
@@ -581,6 +596,7 @@ mod tests {
                 e.1 += 1;
             }
         }
+        assert_eq!(kept, 3 * 4000 / stride); // three scans of 250 columns x 16 beams
         assert!(reference.len() > 500, "{}", reference.len());
         assert_eq!(m.points_in_anchor.len(), reference.len());
         for (got, (_, (sum, n))) in m.points_in_anchor.iter().zip(&reference) {
