@@ -290,7 +290,8 @@ fn corridor(
 /// Steps 3-5 on a cloud too short along its corridor for PCA to name the axis (not in the
 /// paper): the sensor's heading, then the principal directions (the least one first: the
 /// axis of a ring), are tried as the axis until one passes the corridor test (the contour
-/// fit; the refinement settles the axis from each). A forward sensor with a 38 deg field
+/// fit; the refinement settles the axis from each) with a section that closes around it
+/// ([`SHORT_SECTION_ARC`] of the contour seen; the narrow sensor's pipe submaps: all of it). A forward sensor with a 38 deg field
 /// of view sees a 0.6 m pipe's wall from 0.7 m to 1.5 m ahead, densest at the near end: held
 /// out (seed 197), 214 of its 233 submaps had singular-value ratios below 1.1 and the run
 /// closed no loop. `None`: no direction makes the cloud a corridor (a room, a stub of
@@ -322,11 +323,32 @@ fn short_corridor(
         .ok()?;
         trial.axis = frame.a;
         let chart = unrolled_chart(points, &frame, cfg, &mut trial).ok()?;
-        Some((frame, chart, trial))
+        let arc = arc_observed(&chart.points, cfg.contour.inlier_distance_m);
+        (arc >= SHORT_SECTION_ARC).then_some((frame, chart, trial))
     })?;
     *diag = trial;
     Some((frame, chart))
 }
+
+/// Share of its contour's arc a short corridor (`short_corridor`) must be seen on: its
+/// section closes around the axis. An open box room (a floor and four walls) fits a contour
+/// along its length with every point on it once its end walls are cut, but nothing is seen
+/// over its open top.
+const SHORT_SECTION_ARC: f64 = 0.8;
+
+/// Share of [`ARC_SECTORS`] equal sectors of the contour holding a point within `inlier_m`
+/// of it.
+fn arc_observed(chart: &[ChartPoint], inlier_m: f64) -> f64 {
+    let mut seen = [false; ARC_SECTORS];
+    for q in chart.iter().filter(|q| q.s.abs() <= inlier_m) {
+        let k = (q.p.rem_euclid(1.0) * ARC_SECTORS as f64) as usize;
+        seen[k.min(ARC_SECTORS - 1)] = true;
+    }
+    seen.iter().filter(|&&v| v).count() as f64 / ARC_SECTORS as f64
+}
+
+/// Sectors of [`arc_observed`] (10 deg of a round section each).
+const ARC_SECTORS: usize = 36;
 
 /// The trial with the largest share of points on its contour (the first of equals).
 fn most_on_contour(
@@ -997,6 +1019,26 @@ mod tests {
         let d = Vector3::from(stub.landmarks[0].origin_in_submap)
             - Vector3::from(open.landmarks[0].origin_in_submap);
         assert!(d.norm() < 2e-3, "{d:?}");
+    }
+
+    #[test]
+    fn arc_observed_counts_the_sectors_seen_near_the_contour() {
+        // Points every 1 deg over half the section, on the contour; the other half only far
+        // off it (an end wall, clutter): half the arc is seen.
+        let on = (0..180).map(|k| ChartPoint {
+            z: 0.0,
+            p: k as f64 / 360.0,
+            s: 0.01,
+        });
+        let off = (180..360).map(|k| ChartPoint {
+            z: 0.0,
+            p: k as f64 / 360.0,
+            s: 0.5,
+        });
+        let chart: Vec<ChartPoint> = on.chain(off).collect();
+        assert!((arc_observed(&chart, 0.1) - 0.5).abs() < 1e-12);
+        assert!((arc_observed(&chart, 1.0) - 1.0).abs() < 1e-12);
+        assert_eq!(arc_observed(&[], 0.1), 0.0);
     }
 
     #[test]
