@@ -94,6 +94,14 @@ pub struct AxisConfig {
     /// not in the paper). On the 3 m test pipe tilted 20 deg: PCA 0.13 deg error, 2 steps
     /// bring it below 0.01 deg and remove the end-of-submap profile artefacts.
     pub refine_iterations: usize,
+    /// Fit the centre line's curve within each submap (`crate::centre_line`; not in the
+    /// paper): where the corridor curves, a boundary's origin and axis come from the centre
+    /// line where it lies instead of the submap's chord. Off in the presets; `auto` turns it
+    /// on where the odometry's path curves (`decod_rs.autoscale`, curve): on straight
+    /// corridors the fit reads the wall's pattern of visibility as a curve (a simulated 5 m
+    /// horseshoe: 150-4,000 m in half its submaps). Absent: false.
+    #[serde(default)]
+    pub curved: bool,
 }
 
 /// Reference contour fit and validation (paper §III-A, §IV-A.2).
@@ -540,6 +548,7 @@ impl DecodConfig {
             axis: AxisConfig {
                 min_elongation: 2.0,
                 refine_iterations: 2,
+                curved: false,
             },
             contour: tunnel_contour(),
             boundary: tunnel_boundary(),

@@ -4,12 +4,14 @@
 
 use std::fmt;
 
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use crate::axis::{
     CorridorAxis, along, angle_deg, centroid, estimate_axis, refine_axis, transverse_basis,
 };
 use crate::boundary::{BoundaryPeak, ChartPoint, detect_boundaries};
+use crate::centre_line::{self, CentreLine};
 use crate::config::DecodConfig;
 use crate::contour::{ContourFit, fit_contour};
 use crate::corridor_end::{EndFace, face_in_view, trim_end_face};
@@ -149,6 +151,9 @@ pub struct SubmapDiagnostics {
     /// `RELIEF_SAMPLE` evenly strided points), metres: the wall's relief about the contour
     /// (steel arches before the rock, ribs, couplers), which `auto` measures on its probes.
     pub contour_p90_abs_offset_m: f64,
+    /// Radius of the curve of the corridor's centre line within the submap, metres
+    /// (`crate::centre_line`; infinite where it is straight or not reached).
+    pub curve_radius_m: f64,
     /// Local DoG maxima above threshold before non-maximum suppression.
     pub boundary_candidates: usize,
     /// Robust spread of the DoG profile, metres.
@@ -602,6 +607,9 @@ struct Chart {
     bucket_start: Vec<usize>,
     z_lo: f64,
     bucket_m: f64,
+    /// The centre line where the corridor curves within the submap (`crate::centre_line`):
+    /// the offsets above are taken from it.
+    centre_line: Option<CentreLine>,
 }
 
 /// Step 5: every point unrolled once to `(z, p, s)`, cut to the corridor's axial span, and
@@ -615,7 +623,7 @@ fn unrolled_chart(
 ) -> Result<Chart, RejectionReason> {
     let (c, a, e1, e2) = (frame.c, frame.a, frame.e1, frame.e2);
     let contour = &frame.fit.contour;
-    let chart: Vec<ChartPoint> = points
+    let mut chart: Vec<ChartPoint> = points
         .iter()
         .map(|p| {
             let d = [p[0] as f64 - c[0], p[1] as f64 - c[1], p[2] as f64 - c[2]];
@@ -628,6 +636,16 @@ fn unrolled_chart(
             }
         })
         .collect();
+    // A corridor that curves within the submap: offsets from its curved centre line.
+    let centre_line = if cfg.axis.curved {
+        centre_line::fit(&chart, contour, cfg.contour.inlier_distance_m)
+    } else {
+        None
+    };
+    if let Some(line) = &centre_line {
+        centre_line::straighten(&mut chart, contour, line);
+    }
+    diag.curve_radius_m = centre_line.map_or(f64::INFINITY, |l| l.radius_m());
     // A corridor end (portal, cap, junction) in range: keep the axial span that is corridor.
     let chart = corridor_span(chart, cfg);
     let (chart, bucket_start, z_lo, bucket_m) = bucket_by_z(
@@ -656,6 +674,7 @@ fn unrolled_chart(
         bucket_start,
         z_lo,
         bucket_m,
+        centre_line,
     })
 }
 
@@ -669,11 +688,9 @@ fn describe_boundaries(
     peaks: &[BoundaryPeak],
     out: &mut ExtractionOutcome,
 ) {
-    let (c, a, e1, e2) = (frame.c, frame.a, frame.e1, frame.e2);
     let contour = &frame.fit.contour;
     let columns = column_samples(contour, cfg.descriptor.cols);
     let masked = bottom_mask(&columns, cfg.descriptor.bottom_mask_deg);
-    let [cu, cv] = contour.centre_uv;
     let starts = &chart.bucket_start;
     let bucket = |z: f64| ((z - chart.z_lo) / chart.bucket_m).floor().max(0.0) as usize;
     for peak in peaks {
@@ -695,20 +712,46 @@ fn describe_boundaries(
             });
             continue;
         }
-        let origin = std::array::from_fn(|i| c[i] + cu * e1[i] + cv * e2[i] + peak.z_m * a[i]);
+        let (origin, axis, b1, b2) = local_frame(frame, chart.centre_line.as_ref(), peak.z_m);
         out.landmarks.push(Landmark {
             submap_stamp: submap.anchor_stamp,
             scan_stamps: submap.scan_stamps.clone(),
             origin_in_submap: origin,
-            axis_in_submap: a,
-            e1_in_submap: e1,
-            e2_in_submap: e2,
+            axis_in_submap: axis,
+            e1_in_submap: b1,
+            e2_in_submap: b2,
             contour_e1e2_m: columns.iter().map(|s| s.point).collect(),
             radius_m: contour.mean_radius_m,
             strength: peak.strength_m,
             descriptor,
         });
     }
+}
+
+/// A boundary's origin (the contour centre at the peak), axis and transverse basis in the
+/// submap frame: on the fitted axis, or, where the corridor curves within the submap, on the
+/// centre line's point there with its tangent for the axis (`crate::centre_line`; the basis
+/// turned with it, `e1` kept as close as it goes).
+fn local_frame(
+    frame: &CorridorFrame,
+    line: Option<&CentreLine>,
+    z: f64,
+) -> ([f64; 3], [f64; 3], [f64; 3], [f64; 3]) {
+    let (c, a, e1, e2) = (frame.c, frame.a, frame.e1, frame.e2);
+    let [cu, cv] = frame.fit.contour.centre_uv;
+    let Some(line) = line else {
+        let origin = std::array::from_fn(|i| c[i] + cu * e1[i] + cv * e2[i] + z * a[i]);
+        return (origin, a, e1, e2);
+    };
+    let [du, dv] = line.offset(z);
+    let [su, sv] = line.slope(z);
+    let origin = std::array::from_fn(|i| c[i] + (cu + du) * e1[i] + (cv + dv) * e2[i] + z * a[i]);
+    let (a, e1, e2) = (Vector3::from(a), Vector3::from(e1), Vector3::from(e2));
+    let axis = (a + su * e1 + sv * e2).normalize();
+    let b1 = (e1 - e1.dot(&axis) * axis).normalize();
+    let b2 = axis.cross(&b1);
+    let b2 = if b2.dot(&e2) < 0.0 { -b2 } else { b2 };
+    (origin, axis.into(), b1.into(), b2.into())
 }
 
 /// Points sampled for `contour_p90_abs_offset_m`; enough for a percentile to 0.3 %.
@@ -932,6 +975,82 @@ mod tests {
             );
         }
         assert!(row_mean(0).abs() < 0.1e-3 && row_mean(15).abs() < 0.1e-3);
+    }
+
+    const GROOVE_X: f64 = 0.6;
+
+    /// The test pipe bent sideways on a curve of `bend` metres (centre line `y = x^2 / 2
+    /// bend`), its groove at `GROOVE_X`.
+    fn bent_pipe(n: usize, bend: f64) -> Vec<[f32; 3]> {
+        (0..n)
+            .map(|i| {
+                let x = -1.5 + 3.0 * (i as f64 + 0.5) / n as f64;
+                let t = (i as f64 * 0.618_033_988_7).fract() * std::f64::consts::TAU;
+                let noise = 3e-4 * (((i * 7919) % 17) as f64 / 8.0 - 1.0);
+                let groove = if (x - GROOVE_X).abs() < 0.006 {
+                    0.003
+                } else {
+                    0.0
+                };
+                let r = 0.3 + noise + groove;
+                // The section is across the local tangent (1, x / bend): its lateral
+                // offset moves the point back along the axis by r sin(t) x / bend.
+                let slope = x / bend;
+                let (lat, up) = (r * t.sin(), -r * t.cos());
+                [
+                    (x - lat * slope) as f32,
+                    (x * x / (2.0 * bend) + lat) as f32,
+                    up as f32,
+                ]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_bent_pipe_gives_its_boundary_the_local_axis_and_centre() {
+        let bend = 30.0;
+        let points = bent_pipe(150_000, bend);
+        let submap = Submap::from_points(1.0, points, [0.0, 0.0, -1.0], [1.0, 0.0, 0.0])
+            .unwrap_or_else(|e| unreachable!("{e}"));
+        let mut cfg = DecodConfig::pipe();
+        let groove = |cfg: &DecodConfig| {
+            let out = extract_landmarks(&submap, cfg);
+            let found = out
+                .landmarks
+                .iter()
+                .find(|l| (l.origin_in_submap[0] - GROOVE_X).abs() < 0.05)
+                .cloned();
+            (found, out.diagnostics.curve_radius_m)
+        };
+        // The tangent at the groove turns x / bend = 20 mrad from the chord; the centre is
+        // 6 mm sideways of the line through x = 0.
+        let tangent = Vector3::new(1.0, GROOVE_X / bend, 0.0).normalize();
+        let (straight, radius) = groove(&cfg);
+        assert!(radius.is_infinite());
+        // On the chord, the groove's 3 mm are lost in the curve's +-2.5 cm about it, or it
+        // gets the chord for its axis.
+        if let Some(lm) = straight {
+            let off = Vector3::from(lm.axis_in_submap).angle(&tangent);
+            assert!(off > 0.015, "the chord: {off} rad off the tangent");
+        }
+        cfg.axis.curved = true;
+        let (curved, radius) = groove(&cfg);
+        let curved = curved.unwrap_or_else(|| {
+            unreachable!(
+                "the groove is found on the curve ({radius} m): {:?}",
+                extract_landmarks(&submap, &cfg).rejections
+            )
+        });
+        assert!((radius - bend).abs() < 0.1 * bend, "{radius}");
+        let off = Vector3::from(curved.axis_in_submap).angle(&tangent);
+        assert!(off < 0.004, "{off} rad off the tangent");
+        let o = curved.origin_in_submap;
+        assert!(
+            (o[1] - GROOVE_X * GROOVE_X / (2.0 * bend)).abs() < 0.002 && o[2].abs() < 0.002,
+            "{o:?}"
+        );
+        // Still an orthonormal basis about the new axis (Landmark::validate).
+        assert!(curved.validate().is_ok());
     }
 
     #[test]

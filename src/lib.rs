@@ -11,6 +11,7 @@
 
 pub mod axis;
 pub mod boundary;
+pub mod centre_line;
 pub mod config;
 pub mod contour;
 pub mod corridor_end;

@@ -174,6 +174,8 @@ pub(crate) struct PyDiagnostics {
     contour_median_abs_offset_m: f64,
     /// 90th percentile of |offset| from the contour (the wall's relief), metres.
     contour_p90_abs_offset_m: f64,
+    /// Radius of the corridor's curve within the submap, metres (inf: straight).
+    curve_radius_m: f64,
     /// DoG maxima above threshold before NMS.
     boundary_candidates: usize,
     /// Robust spread of the DoG profile, metres.
@@ -203,6 +205,7 @@ impl From<&SubmapDiagnostics> for PyDiagnostics {
             contour_inlier_fraction: d.contour_inlier_fraction,
             contour_median_abs_offset_m: d.contour_median_abs_offset_m,
             contour_p90_abs_offset_m: d.contour_p90_abs_offset_m,
+            curve_radius_m: d.curve_radius_m,
             boundary_candidates: d.boundary_candidates,
             dog_sigma_m: d.dog_sigma_m,
             dog_threshold_m: d.dog_threshold_m,

@@ -172,6 +172,12 @@ def print_setup(report: dict[str, Any]) -> None:
             f"{submap['max_range_m']:.2f} m, a submap every {submap['interval_s']:.2f} s "
             f"({submap['scans_per_submap']} scans{'; set by the ' + rule if rule else ''})"
         )
+        curvature = auto["measured"].get("curvature_per_m") or 0.0
+        if (auto["derived"].get("axis") or {}).get("curved") and curvature > 0:
+            print(
+                f"curve          the path curves (radius {1.0 / curvature:.0f} m): "
+                "centre lines fitted per submap"
+            )
     if report.get("no_loop_reason"):
         print(f"no loop        {report['no_loop_reason']}")
 

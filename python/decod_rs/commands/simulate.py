@@ -72,6 +72,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "length, seconds standing still, e.g. out:0.5:20 (an inspection stop at a defect)",
     )
     p.add_argument(
+        "--curve-radius",
+        type=float,
+        default=None,
+        metavar="M",
+        help="the corridor curves in the horizontal plane with this radius in metres "
+        "(positive to the left, negative to the right; at least 20 corridor radii); "
+        "default straight",
+    )
+    p.add_argument(
         "--odometry",
         choices=["drift", "kiss-icp"],
         default="drift",
@@ -145,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         world_seed=args.world_seed,
         mount_deg=args.mount,
         stops=args.stops,
+        curve_radius_m=args.curve_radius,
         odometry=args.odometry,
         livox=args.livox,
         ros1=args.ros1,
@@ -161,6 +171,9 @@ def run(args: argparse.Namespace) -> int:
     for leg, fraction, seconds in args.stops:
         where = "out" if leg == 0.0 else "back"
         print(f"stop           {seconds:g} s standing, {100 * fraction:g} % of the way {where}")
+    if args.curve_radius is not None:
+        side = "left" if args.curve_radius > 0 else "right"
+        print(f"corridor       curves with radius {args.curve_radius:g} m to the {side}")
     print(f"joints         {res.n_joints} true boundaries in {res.joints_json}")
     print(f"odometry       endpoint error {res.endpoint_error_m:.3f} m")
     print(f"log            {res.log_dir} ({mb:.1f} MB)")

@@ -8,7 +8,7 @@ import math
 import shutil
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.progress import Progress
+from decod_rs.sim.bend import Bend, check_bend_radius
 from decod_rs.sim.drift import DriftResult, odometry_for_profile, parse_profile
 from decod_rs.sim.fields import F64
 from decod_rs.sim.imu import ImuSamples, ImuSpec, simulate_imu
@@ -77,6 +78,7 @@ class Simulation:
         world_seed: int | None = None,
         mount_deg: tuple[float, float] = (0.0, 0.0),
         stops: Sequence[tuple[float, float, float]] = (),
+        curve_radius_m: float | None = None,
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
         # The world (scene geometry) may come from another seed than the run (noise, drift,
@@ -108,16 +110,32 @@ class Simulation:
         n_scans = int(np.floor(self.traj.duration_s / SCAN_PERIOD_S)) + 1
         self.stamps_ns = T0_NS + SCAN_PERIOD_NS * np.arange(n_scans, dtype=np.int64)
         self.t_s: F64 = np.arange(n_scans, dtype=np.float64) * SCAN_PERIOD_S
-        self.gt_poses = self.traj.poses(self.t_s)
+        # Scans are cast in the straight world; the ground truth, the odometry and the
+        # points written are in the bent one (:mod:`decod_rs.sim.bend`).
+        radius = check_bend_radius(curve_radius_m, self.scene.radius_m)
+        self.bend: Bend | None = None if radius is None else Bend(radius)
+        self.straight_poses = self.traj.poses(self.t_s)
+        self.gt_poses = (
+            self.straight_poses if self.bend is None else self.bend.poses(self.straight_poses)
+        )
         parsed = parse_profile(drift)
         self.drift_profile = str(drift) if isinstance(parsed, float) else parsed.text
         self.drift_request_m: float | None = parsed if isinstance(parsed, float) else None
-        self.drift: DriftResult = odometry_for_profile(
-            self.gt_poses,
+        # The odometry errs in the corridor's own frame (along its axis where the robot is):
+        # drifted in the straight world, its error carried into the bent one.
+        drifted = odometry_for_profile(
+            self.straight_poses,
             self.traj.travelled(self.t_s),
             drift,
             np.random.default_rng([self.seed, 3]),
             split_index=self.scan_index_at(self.traj.t_far_arrive),
+        )
+        self.drift: DriftResult = (
+            drifted
+            if self.bend is None
+            else replace(
+                drifted, odom_poses=self.bend.carry(self.straight_poses, drifted.odom_poses)
+            )
         )
         self.imu_spec = imu or ImuSpec()
         self.imu: ImuSamples = simulate_imu(
@@ -134,7 +152,7 @@ class Simulation:
 
     def scan(self, k: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Scan ``k``: points ``(M, 3)`` float32 in the body frame and intensities ``(M,)``."""
-        pose = self.gt_poses[k]
+        pose = self.straight_poses[k]
         rot, origin = pose[:3, :3], pose[:3, 3]
         dirs_body = ray_directions(self.sensor, k)
         hits = cast(self.scene, origin, dirs_body @ rot.T)
@@ -142,6 +160,11 @@ class Simulation:
         pts_w, inten, _ = measure(
             self.sensor, hits, origin, self._reflectivity, self.range_noise_m, rng
         )
+        if self.bend is not None:
+            pts_w = self.bend.points(pts_w)
+            rot, origin = self.gt_poses[k, :3, :3], self.gt_poses[k, :3, 3]
+            seen = self.bend.in_sight(origin, pts_w, self.scene.radius_m, self.scene.floor_z_m)
+            pts_w, inten = pts_w[seen], inten[seen]
         pts_b = (pts_w - origin) @ rot
         return pts_b.astype(np.float32), inten
 
@@ -183,6 +206,7 @@ class Simulation:
                 "centre_line_y_m": 0.0,
                 "centre_line_z_m": 0.0,
                 "radius_m": sc.radius_m,
+                "curve_radius_m": None if self.bend is None else self.bend.radius_m,
                 "floor_z_m": sc.floor_z_m,
                 "x_min_m": sc.x_min_m,
                 "x_max_m": sc.x_max_m,
@@ -217,7 +241,13 @@ class Simulation:
                 "duration_s": float(self.t_s[-1]),
             },
             "frames": {
-                "world": "corridor axis +x from x = 0, z up; gt.tum is world_from_body",
+                "world": "corridor axis +x from x = 0, z up; gt.tum is world_from_body"
+                + (
+                    ""
+                    if self.bend is None
+                    else f"; the axis curves with radius {self.bend.radius_m:g} m (positive: "
+                    "to the left) and joints_x_m are arc lengths along it"
+                ),
                 "body": "sensor frame, x forward, y left, z up (FLU)",
                 "odom": "drifting odometry frame, equal to world at the first stamp",
             },
@@ -265,6 +295,7 @@ def generate(
     scene_overrides: dict[str, Any] | None = None,
     world_seed: int | None = None,
     mount_deg: tuple[float, float] = (0.0, 0.0),
+    curve_radius_m: float | None = None,
 ) -> SimData:
     """Simulate a run in memory (every scan, or only ``scan_indices``; the poses, IMU and
     drift always cover the whole run and ``stamps_ns`` the selected scans). Arguments as
@@ -283,6 +314,7 @@ def generate(
         scene_overrides=scene_overrides,
         world_seed=world_seed,
         mount_deg=mount_deg,
+        curve_radius_m=curve_radius_m,
     )
     idx = list(range(sim.n_scans)) if scan_indices is None else list(scan_indices)
     scans = [sim.scan(k) for k in idx]
@@ -563,6 +595,7 @@ def simulate(
     world_seed: int | None = None,
     mount_deg: tuple[float, float] = (0.0, 0.0),
     stops: Sequence[tuple[float, float, float]] = (),
+    curve_radius_m: float | None = None,
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -586,6 +619,8 @@ def simulate(
     carry (:class:`TrajectorySpec`).
     ``stops``: halts along the legs, ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return;
     :class:`TrajectorySpec`), as an inspection robot makes at defects.
+    ``curve_radius_m``: the corridor curves in the horizontal plane with this radius
+    (positive to the left; :mod:`decod_rs.sim.bend`); None: straight.
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
@@ -614,6 +649,7 @@ def simulate(
         world_seed=world_seed,
         mount_deg=mount_deg,
         stops=stops,
+        curve_radius_m=curve_radius_m,
     )
     if overwrite:
         # Every argument checked (the Simulation refuses a bad one): only now is an earlier

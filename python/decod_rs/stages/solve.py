@@ -174,6 +174,7 @@ def optimise(
                 seq.sigma_m,
                 split,
                 tied,
+                curved=bool(cfg.axis.curved),
             )
         # Nothing measured the degenerate axis: the odometry stands (paper Alg. 1, "keep
         # X* = X_odom if L is empty"); a few sequential factors alone only add noise.
