@@ -232,10 +232,9 @@ def test_a_tunnel_on_a_curve_is_corrected_without_being_straightened(
     # far end. A submap's axis is the chord of the curve in range, and boundaries seen far
     # from the middle of their submap got origins off the centre line and axes off its
     # tangent: the boundary factors straightened the corrected trajectory. Held out (seed
-    # 211, the first curved logs decod saw): RMSE -64 % in a 6 m shield on a 300 m curve
-    # (0.85 m sideways and 52 mrad of heading at its far end). Now `auto` sees the
-    # odometry's path curve and fits each submap's centre line (src/centre_line.rs). This
-    # log (seed 25) was not used to build it.
+    # 211, the first curved logs decod saw): RMSE -60 % in a 6 m shield on a 300 m curve.
+    # Now `auto` sees the odometry's path curve and fits each submap's centre line
+    # (src/centre_line.rs). This log (seed 25) was not used to build it.
     sim = tmp_path / "sim"
     simulate(
         "horseshoe",
@@ -257,7 +256,7 @@ def test_a_tunnel_on_a_curve_is_corrected_without_being_straightened(
     fine, coarse = result["loops"]["fine"], result["loops"]["coarse"]
     assert fine["accepted"] >= 10, (fine, report["query_rejections"])
     assert fine["false_positives"] == 0 and coarse["false_positives"] == 0, fine
-    # RMSE 1.28 -> 0.14 m (-89 %); with the submaps' chords (`axis.curved = false`) the
-    # same log gives 0.37 m (-71 %), 50 loops, none wrong.
+    # RMSE 1.28 -> 0.11 m (-92 %, 245 loops); with the submaps' chords (`axis.curved =
+    # false`) the same log gives 0.50 m (-61 %, 51 loops), none wrong either way.
     traj = result["trajectory"]
     assert traj["corrected"]["rmse_m"] < 0.2 * traj["odometry"]["rmse_m"], traj

@@ -13,12 +13,13 @@ so a joint at ``x`` in ``joints.json`` is at arc length ``x`` along the bent cen
 ring's face stays a plane across the axis, and the inside of the curve is shorter than the
 outside by ``y / R`` (as in a real curved tunnel). Poses are bent with their position and
 turned by the heading ``x / R`` of the centre line at their ``x``. The odometry is drifted in
-the straight world and its error carried into the bent one in the frame of the robot's true
-place (:meth:`Bend.carry`): along the curved axis there, the heading as accurate as the
-walls make it, as a corridor odometry's error is (drifted on the bent path, the endpoint
-model's error along world x came out sideways where the corridor had turned: 0.44 m across
-the axis at the far end of a 5 m horseshoe on a 100 m curve, which the graph, trusting the
-odometry across the axis, kept).
+the straight world and its error carried into the bent one step by step, in the robot's
+frame (:meth:`Bend.carry`): each step reads short or long along the robot's own heading, as
+a corridor odometry's does, and integrated along the curve (drifted on the bent path, the
+endpoint model's error along world x came out sideways where the corridor had turned: 0.44 m
+across the axis at the far end of a 5 m horseshoe on a 100 m curve; carried as one offset in
+the frame of the robot's true place, each step of a return 15 % short on a 50 m curve moved
+up to 9 % sideways to its heading, which no corridor odometry does).
 
 The scans are cast in the straight world and bent with it (:meth:`Simulation.scan
 <decod_rs.sim.api.Simulation.scan>`): each point lies exactly on the bent surface, but the
@@ -129,17 +130,19 @@ class Bend:
         return ok
 
     def carry(self, truth: F64, other: F64) -> F64:
-        """``(N, 4, 4)`` poses ``other`` (straight world, e.g. the drifted odometry) in the
-        bent world, their offset from ``truth`` (the straight true poses at the same stamps)
-        turned with the truth's place: ``bend(truth)`` composed with the straight offset
-        ``truth^-1 other`` expressed in the world."""
+        """``(N, 4, 4)`` poses ``other`` (straight world, e.g. the drifted odometry) in the bent
+        world, step by step: each step's error against the truth in the robot's frame (``D_k^-1
+        O_k``, ``D_k`` and ``O_k`` the truth's and ``other``'s steps from scan ``k - 1``)
+        composed with the bent truth's step, from the first pose's offset. A straight world
+        gives ``other`` back."""
         t = np.asarray(truth, dtype=np.float64)
         o = np.asarray(other, dtype=np.float64)
         bent = self.poses(t)
-        turn = bent[:, :3, :3] @ np.transpose(t[:, :3, :3], (0, 2, 1))  # the yaw at the truth
-        out = o.copy()
-        out[:, :3, :3] = turn @ o[:, :3, :3]
-        out[:, :3, 3] = bent[:, :3, 3] + np.einsum("nij,nj->ni", turn, o[:, :3, 3] - t[:, :3, 3])
+        out = np.empty_like(o)
+        out[0] = bent[0] @ np.linalg.inv(t[0]) @ o[0]
+        for k in range(1, o.shape[0]):
+            error = np.linalg.inv(np.linalg.inv(t[k - 1]) @ t[k]) @ (np.linalg.inv(o[k - 1]) @ o[k])
+            out[k] = out[k - 1] @ (np.linalg.inv(bent[k - 1]) @ bent[k]) @ error
         return out
 
     def poses(self, poses: F64) -> F64:
