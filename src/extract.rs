@@ -623,28 +623,28 @@ fn unrolled_chart(
 ) -> Result<Chart, RejectionReason> {
     let (c, a, e1, e2) = (frame.c, frame.a, frame.e1, frame.e2);
     let contour = &frame.fit.contour;
-    let mut chart: Vec<ChartPoint> = points
-        .iter()
-        .map(|p| {
-            let d = [p[0] as f64 - c[0], p[1] as f64 - c[1], p[2] as f64 - c[2]];
-            let dot = |v: &[f64; 3]| d[0] * v[0] + d[1] * v[1] + d[2] * v[2];
-            let u = contour.unroll([dot(&e1), dot(&e2)]);
-            ChartPoint {
-                z: dot(&a),
-                p: u.p,
-                s: u.s,
-            }
-        })
-        .collect();
-    // A corridor that curves within the submap: offsets from its curved centre line.
+    let unroll = |p: &[f32; 3], line: Option<&CentreLine>| {
+        let d = [p[0] as f64 - c[0], p[1] as f64 - c[1], p[2] as f64 - c[2]];
+        let dot = |v: &[f64; 3]| d[0] * v[0] + d[1] * v[1] + d[2] * v[2];
+        centre_line::unroll(contour, line, dot(&a), [dot(&e1), dot(&e2)])
+    };
+    // A corridor that curves within the submap: its centre line, fitted on a subset unrolled
+    // from the straight axis; every point is then unrolled from it.
     let centre_line = if cfg.axis.curved {
-        centre_line::fit(&chart, contour, cfg.contour.inlier_distance_m)
+        let stride = points.len().div_ceil(centre_line::FIT_POINTS).max(1);
+        let sample: Vec<ChartPoint> = points
+            .iter()
+            .step_by(stride)
+            .map(|p| unroll(p, None))
+            .collect();
+        centre_line::fit(&sample, contour, cfg.contour.inlier_distance_m)
     } else {
         None
     };
-    if let Some(line) = &centre_line {
-        centre_line::straighten(&mut chart, contour, line);
-    }
+    let chart: Vec<ChartPoint> = points
+        .iter()
+        .map(|p| unroll(p, centre_line.as_ref()))
+        .collect();
     diag.curve_radius_m = centre_line.map_or(f64::INFINITY, |l| l.radius_m());
     // A corridor end (portal, cap, junction) in range: keep the axial span that is corridor.
     let chart = corridor_span(chart, cfg);

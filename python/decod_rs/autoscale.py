@@ -82,7 +82,7 @@ at ``r_ref = 3 m``; ``k = r / r_ref``; the pipe preset is the same rule at k = 0
   tighter; 162 straight runs of the matrix and the held-out sets reached at most 0.69 of
   that, 16 curved logs at least 1.11). Held out (seed 211, eight corridors on 20-500 m
   curves): the 6 m shield with 64 beams on a 300 m curve had its corrected RMSE at 0.43 m
-  (symmetric drift, odometry 1.08 m), 0.057 m with the curve fitted.
+  (symmetric drift, odometry 1.08 m), 0.018 m with the curve fitted.
 
 ``report.json`` records the measurements and every derived value (``auto``), and which of
 the schedule's three rules set the anchor interval (``auto.schedule``: ``visible_window``,
