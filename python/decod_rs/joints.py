@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.path_curve import path_length
 
 FloatArray = NDArray[np.float64]
 
@@ -90,7 +91,7 @@ def landmark_chainage(
     positions = corrected[:, :3, 3]
     far = int(np.argmax(np.linalg.norm(positions - positions[0], axis=1)))
     path = positions[: far + 1]
-    arclength = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    arclength = path_length(path)
     out = np.empty(len(stamps))
     for k, stamp in enumerate(stamps):
         pose = corrected[int(np.argmin(np.abs(scan_stamps - stamp)))]

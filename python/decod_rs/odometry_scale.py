@@ -86,6 +86,7 @@ from numpy.typing import NDArray
 
 from decod_rs.graph import LoopConstraint
 from decod_rs.maps import pass_of
+from decod_rs.path_curve import path_length
 
 FloatArray = NDArray[np.float64]
 
@@ -296,7 +297,7 @@ def travel_directions(positions: FloatArray, fallback: FloatArray) -> FloatArray
     n = p.shape[0]
     if n < 2:
         return np.zeros((0, 3))
-    travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    travel = path_length(p)
     mid = 0.5 * (travel[1:] + travel[:-1])
 
     def at(d: FloatArray) -> FloatArray:

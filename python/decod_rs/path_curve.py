@@ -32,7 +32,13 @@ STEP_M = 0.25
 #: The percentile of the windows' curvatures that is the log's.
 PERCENTILE = 75.0
 
-__all__ = ["PERCENTILE", "STEP_M", "path_curvature"]
+__all__ = ["PERCENTILE", "STEP_M", "path_curvature", "path_length"]
+
+
+def path_length(positions: FloatArray) -> FloatArray:
+    """``(N,)`` distance travelled along ``positions`` (N, 3) up to each, metres (0 first)."""
+    steps = np.linalg.norm(np.diff(np.asarray(positions, dtype=np.float64), axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
 
 
 def path_curvature(positions: FloatArray, window_m: float) -> float:
@@ -41,7 +47,7 @@ def path_curvature(positions: FloatArray, window_m: float) -> float:
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 2 or p.shape[0] < 3 or not window_m > 0:
         return 0.0
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    s = path_length(p)
     grid = np.arange(0.0, s[-1], STEP_M)
     if grid.size < 3:
         return 0.0

@@ -84,6 +84,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from decod_rs.path_curve import path_length
+
 FloatArray = NDArray[np.float64]
 
 __all__ = [
@@ -105,11 +107,6 @@ PERCENTILE = 90.0
 MAX_ROUNDS = 2
 
 
-def _path(poses: FloatArray) -> FloatArray:
-    steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(steps)])
-
-
 def travel_disagreement_m(odometry: FloatArray, corrected: FloatArray, scans: int) -> float:
     """How much the two trajectories (N x 4 x 4 at the same scan stamps) disagree about the
     distance travelled over ``scans`` consecutive scans: the 90th percentile of ``|corrected
@@ -129,7 +126,7 @@ def travel_disagreement_m(odometry: FloatArray, corrected: FloatArray, scans: in
         raise ValueError(f"scans_per_submap: {scans} must be >= 1")
     if odometry.shape[0] <= n:
         return 0.0
-    a, b = _path(odometry), _path(corrected)
+    a, b = path_length(odometry[:, :3, 3]), path_length(corrected[:, :3, 3])
     travel_a, travel_b = a[n:] - a[:-n], b[n:] - b[:-n]
     diff = np.abs(travel_b - travel_a)
     weight = np.maximum(travel_a, travel_b)

@@ -138,11 +138,13 @@ class Bend:
         t = np.asarray(truth, dtype=np.float64)
         o = np.asarray(other, dtype=np.float64)
         bent = self.poses(t)
+        t_inv, o_inv, bent_inv = (np.linalg.inv(x) for x in (t, o, bent))
+        # Each bent step followed by that step's error, D_k^-1 O_k = t_k^-1 t_{k-1} o_{k-1}^-1 o_k.
+        steps = (bent_inv[:-1] @ bent[1:]) @ (t_inv[1:] @ t[:-1]) @ (o_inv[:-1] @ o[1:])
         out = np.empty_like(o)
-        out[0] = bent[0] @ np.linalg.inv(t[0]) @ o[0]
-        for k in range(1, o.shape[0]):
-            error = np.linalg.inv(np.linalg.inv(t[k - 1]) @ t[k]) @ (np.linalg.inv(o[k - 1]) @ o[k])
-            out[k] = out[k - 1] @ (np.linalg.inv(bent[k - 1]) @ bent[k]) @ error
+        out[0] = bent[0] @ t_inv[0] @ o[0]
+        for k, step in enumerate(steps, start=1):
+            out[k] = out[k - 1] @ step
         return out
 
     def poses(self, poses: F64) -> F64:
