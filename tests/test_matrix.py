@@ -107,10 +107,11 @@ def test_quick_tier_and_filter() -> None:
 def test_the_fresh_tier_is_held_out_and_outside_the_full_tier() -> None:
     fresh = tier_cells("fresh")
     full = tier_cells("full")
-    assert len(fresh) == 10 and all(c.held_out for c in fresh)
+    assert len(fresh) == 14 and all(c.held_out for c in fresh)
     assert not {c.name for c in fresh} & {c.name for c in full}
-    # Each cell a size, spacing, speed, sensor mount or stops its scene does not have in the
-    # full tier (every full-tier sensor is level, every full-tier run drives through).
+    # Each cell a size, spacing, speed, sensor mount, stops or water its scene does not have
+    # in the full tier (every full-tier sensor is level, every full-tier run drives through,
+    # every full-tier pipe is dry).
     assert all(c.mount_deg == (0.0, 0.0) and not c.stops for c in full)
     full_keys = {
         (c.scene, key, value) for c in full for key, value in c.scene_overrides.items()
@@ -123,6 +124,7 @@ def test_the_fresh_tier_is_held_out_and_outside_the_full_tier() -> None:
         keys |= {(c.scene, "stops", c.stops)} if c.stops else set()
         assert keys and not keys & full_keys, c.name
     assert [c.name for c in tier_cells("fresh", "d0.8")] == ["pe-spin16-reverse-s7-d0.8"]
+    assert len(tier_cells("fresh", "water")) == 4
     assert all(c.profiles == (SYMMETRIC, UNEVEN, OVERLONG) for c in fresh)
 
 

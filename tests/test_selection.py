@@ -250,6 +250,49 @@ def test_auto_schedule_fills_the_descriptor_of_a_sparse_sensor() -> None:
     assert DESCRIPTOR_FILL**2 == pytest.approx(2 * 0.25)
 
 
+def test_auto_schedule_fills_only_the_part_of_the_section_the_sensor_sees() -> None:
+    from types import SimpleNamespace
+
+    from decod_rs.autoscale import DESCRIPTOR_CELLS, DESCRIPTOR_FILL, _descriptor_points
+
+    # Water fills the bottom of a 0.4 m pipe to 30 % of its diameter and mirrors the beam
+    # away: the sensor sees the wall above it, 73 % of the section outside the bottom mask
+    # (+-66 deg of 180 about the bottom are under water; the mask is +-30 deg). Scans of the
+    # wall as sparse as a 16-beam sensor's there, a ring of points every 5 cm along the range
+    # window, each point 3 deg apart round the section, and under the water one ray in 33
+    # returns from its surface.
+    rng = np.random.default_rng(0)
+    radius, level = 0.2, -0.2 + 0.12
+
+    def scan(water: bool) -> SimpleNamespace:
+        x = np.repeat(np.arange(0.4, 1.3, 0.05), 120)
+        ang = np.tile(np.radians(np.arange(0.0, 360.0, 3.0)), x.size // 120)
+        y, z = radius * np.sin(ang), -radius * np.cos(ang)
+        hidden = water & (z < level)
+        kept = ~hidden | (rng.random(x.size) < 0.03)
+        z = np.where(hidden, level, z)
+        return SimpleNamespace(points=np.stack([x, y, z], axis=1)[kept])
+
+    submap = SimpleNamespace(forward=np.array([1.0, 0.0, 0.0]), gravity=np.array([0, 0, -1.0]))
+    probed = [(submap, np.array([1.0, 0.0, 0.0]))]
+    probe = _probe(radius, 0.55, 0.4)
+    dry_points, dry_share = _descriptor_points([[scan(False)] * 3], probed, probe)
+    wet_points, wet_share = _descriptor_points([[scan(True)] * 3], probed, probe)
+    assert dry_share == 1.0
+    seen = (180.0 - np.degrees(np.arccos(0.08 / radius))) / 150.0  # 0.73: crown side of the line
+    assert wet_share == pytest.approx(seen, abs=2.0 / 30)  # 10 deg sectors, one each side
+    assert wet_points == pytest.approx(dry_points * seen, rel=0.05)
+    # The points fall on the cells of the wall the sensor sees: the fill rule asks for as
+    # many scans as fill DESCRIPTOR_FILL of those, not of the whole section (a longer window
+    # only smears the boundaries under drift).
+    wet = derive(replace(probe, descriptor_points=wet_points, wall_share=wet_share))
+    needed = -math.log(1.0 - DESCRIPTOR_FILL) * DESCRIPTOR_CELLS * wet_share / wet_points
+    assert wet["submap"]["scans_per_submap"] == round(needed)
+    unseen = derive(replace(probe, descriptor_points=wet_points))  # as if the water were wall
+    ratio = unseen["submap"]["interval_s"] / wet["submap"]["interval_s"]
+    assert ratio == pytest.approx(1.0 / wet_share, rel=0.1)
+
+
 def test_auto_schedule_keeps_a_window_shorter_than_the_drift_smears() -> None:
     from decod_rs.autoscale import DRIFT_FRACTION, auto_config
 

@@ -617,6 +617,46 @@ def test_scene_overrides_change_the_geometry_consistently() -> None:
     assert sim.traj_spec.z0_m == pytest.approx(-3.0 + 1.6)
 
 
+def test_water_hides_the_bottom_of_a_pipe_and_seldom_returns() -> None:
+    from decod_rs.sim.pipes import WATER_RETURN_FRACTION
+
+    # A 0.4 m pe pipe 30 % full (a sewer's flow): no point below the water's surface, and of
+    # the rays that meet the surface only WATER_RETURN_FRACTION return (calm water mirrors
+    # the beam away). Measured against the same run in the dry pipe.
+    def run(depth: float) -> tuple[np.ndarray, float]:
+        data = generate(
+            "pe",
+            seed=3,
+            length_m=2.0,
+            sensor="spin16",
+            sensor_overrides={"h_res_deg": 1.0},
+            scene_overrides={"water_depth_m": depth} if depth else None,
+            scan_indices=[10, 30, 50],
+        )
+        world = [
+            p.astype(np.float64) @ g[:3, :3].T + g[:3, 3]
+            for p, g in zip(data.points, data.gt_poses, strict=True)
+        ]
+        return np.concatenate(world), data.metadata["axis"]["floor_z_m"]
+
+    dry, no_floor = run(0.0)
+    wet, level = run(0.12)
+    assert no_floor is None and level == pytest.approx(-0.2 + 0.12)
+    sigma = 4 * 0.0015
+    assert np.count_nonzero(wet[:, 2] < level - sigma) == 0
+    below = np.count_nonzero(dry[:, 2] < level)  # wall the water now covers (or fewer rays)
+    surface = np.count_nonzero(np.abs(wet[:, 2] - level) <= sigma)
+    assert 0 < surface < 3 * WATER_RETURN_FRACTION * below, (surface, below)
+    # Above the water the wall is seen as in the dry pipe (+-10 %: dropouts are random).
+    above = (dry[:, 2] > level + 0.02).sum(), (wet[:, 2] > level + 0.02).sum()
+    assert above[1] == pytest.approx(above[0], rel=0.1)
+    # A pipe at least half full, or a sensor under the water, is refused by name.
+    with pytest.raises(ValueError, match="water_depth_m"):
+        scene_params("pe", {"water_depth_m": 0.2})
+    with pytest.raises(ValueError, match="under the water"):
+        Simulation("hume", seed=0, length_m=2.0, scene_overrides={"water_depth_m": 0.28})
+
+
 def test_cli_scene_param(tmp_path: Path) -> None:
     args = ["simulate", "pe", "--out", str(tmp_path), "--length", "1.5", "--speed", "0.5"]
     args += ["--rays", "200", "--quiet", "--scene-param", "radius_m=0.3"]

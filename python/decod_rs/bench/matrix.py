@@ -12,11 +12,12 @@ and 4 m (and the scenes' own 1.2, 1.5, 2.43 and 6 m), tunnel widths 3, 4, 9 and 
 the scenes' 5 and 6 m), speeds 0.2, 0.8 and 2 m/s (and the scenes' 0.4, 1.2 and 1.5 m/s), and
 an aliased hume pipe (identical joints). The quick tier (:data:`QUICK`) is 8 of these cells:
 one per scene with its main sensor, an uneven-drift hume, the aliased pipe and two held-out
-variants. The fresh tier (:data:`FRESH`) is ten cells outside the full tier, all held
+variants. The fresh tier (:data:`FRESH`) is fourteen cells outside the full tier, all held
 out: other diameters (0.45, 0.8 m), joint spacing (2 m), widths (4, 7 m) and speeds (0.3,
 0.6, 1.0, 2.0 m/s), with sensor and return combinations of their own, two sensors
-mounted pitched or rolled (every other cell's sensor is level) and two runs that stop along
-the way for 10-20 s (every other cell drives through).
+mounted pitched or rolled (every other cell's sensor is level), two runs that stop along
+the way for 10-20 s (every other cell drives through) and four pipes 20-30 % full of water
+(every other pipe is dry).
 
 **Sensors that see the walls.** A boundary is matched from its unrolled ring, so the whole
 ring (above a tunnel's floor) must fall inside the field of view from some distance:
@@ -254,6 +255,8 @@ def _fresh(
 #: mount the sensor pitched or rolled, which no other cell does; the two after them (added
 #: with the simulator's stops, first run as they are) halt along the way, as an inspection
 #: robot does at defects, which no other cell does.
+#: The last four (added with the simulator's water, ``water_depth_m``, first run as they
+#: are) are sewers with flow: the water hides the bottom of the pipe.
 FRESH: tuple[Cell, ...] = (
     _fresh("pe-spin16-reverse-s7-d0.8", 30.0, "pe, diameter 0.8 m", radius_m=0.4),
     _fresh(
@@ -302,6 +305,30 @@ FRESH: tuple[Cell, ...] = (
         40.0,
         "shield, stops of 20 s out and 15 s back",
         stops=((0.0, 0.4, 20.0), (1.0, 0.6, 15.0)),
+    ),
+    _fresh(
+        "hume-avia-reverse-s7-water0.2",
+        30.0,
+        "hume, water 20 % of the diameter deep",
+        water_depth_m=0.12,
+    ),
+    _fresh(
+        "hume-spin16-reverse-s7-water0.3",
+        30.0,
+        "hume, water 30 % of the diameter deep",
+        water_depth_m=0.18,
+    ),
+    _fresh(
+        "pe-avia-reverse-s7-water0.2",
+        30.0,
+        "pe, water 20 % of the diameter deep",
+        water_depth_m=0.08,
+    ),
+    _fresh(
+        "pe-spin16-reverse-s7-water0.3",
+        30.0,
+        "pe, water 30 % of the diameter deep",
+        water_depth_m=0.12,
     ),
 )
 

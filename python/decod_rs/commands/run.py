@@ -178,6 +178,12 @@ def print_setup(report: dict[str, Any]) -> None:
                 f"curve          the path curves (radius {1.0 / curvature:.0f} m): "
                 "centre lines fitted per submap"
             )
+        share = auto["measured"].get("wall_share", 1.0)
+        if share < 1.0:
+            print(
+                f"wall seen      {100 * share:.0f} % of the section above the bottom (water or "
+                "debris hides the rest): submaps fill that part"
+            )
     if report.get("no_loop_reason"):
         print(f"no loop        {report['no_loop_reason']}")
 

@@ -17,6 +17,9 @@ Geometry overrides: ``simulate(..., scene_overrides={"radius_m": 0.5})`` (``deco
 ... --scene-param radius_m=0.5``) changes the builder's parameters (``radius_m``,
 ``segment_length_m`` / ``ring_width_m`` / ``arch_spacing_m`` = the boundary spacing, ...;
 :func:`scene_params` lists them); the sensor mount and a tunnel's floor follow the radius.
+A pipe's ``water_depth_m`` (below its radius, the sensor above it) fills its bottom with
+water: a floor at ``-radius + depth`` that returns ``WATER_RETURN_FRACTION`` (3 %) of the
+rays meeting it (calm water mirrors the beam away), recorded as ``axis.floor_z_m``.
 
 Drift profiles (:mod:`decod_rs.sim.drift`): an endpoint error in metres or a preset, or
 per-leg scale errors ``"legs:-0.05,-0.15"``, or scale errors changing along the way

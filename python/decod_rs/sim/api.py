@@ -101,6 +101,15 @@ class Simulation:
             self.identical_joints,
             self.scene_overrides,
         )
+        if self.scene.floor_z_m is not None:
+            # A pipe's water (a tunnel's floor is always far below its sensor).
+            lowest = defaults.z0_m - 2.0 * defaults.vertical_m
+            if lowest <= self.scene.floor_z_m:
+                raise ValueError(
+                    f"the sensor ({defaults.z0_m:+.3f} m, wobbling down to {lowest:+.3f} m) "
+                    f"would be under the water at {self.scene.floor_z_m:+.3f} m: lower "
+                    "water_depth_m"
+                )
         self.sensor: SensorSpec = sensor_spec(sensor or defaults.sensor, **(sensor_overrides or {}))
         self.range_noise_m = (
             self.sensor.range_noise_m
@@ -145,6 +154,10 @@ class Simulation:
         for k, v in self.scene.reflectivity.items():
             refl[k] = v
         self._reflectivity = refl
+        frac = np.ones(8)
+        for k, v in self.scene.return_fraction.items():
+            frac[k] = v
+        self._return_fraction = frac
 
     @property
     def n_scans(self) -> int:
@@ -158,7 +171,13 @@ class Simulation:
         hits = cast(self.scene, origin, dirs_body @ rot.T)
         rng = np.random.default_rng([self.seed, 5, k])
         pts_w, inten, _ = measure(
-            self.sensor, hits, origin, self._reflectivity, self.range_noise_m, rng
+            self.sensor,
+            hits,
+            origin,
+            self._reflectivity,
+            self.range_noise_m,
+            rng,
+            self._return_fraction,
         )
         if self.bend is not None:
             pts_w = self.bend.points(pts_w)

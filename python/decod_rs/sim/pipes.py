@@ -29,6 +29,7 @@ from decod_rs.sim.fields import (
 )
 from decod_rs.sim.surface import (
     KIND_CAP,
+    KIND_FLOOR,
     KIND_WALL,
     PatchSet,
     Scene,
@@ -37,6 +38,11 @@ from decod_rs.sim.surface import (
 )
 
 N_THETA_PATCH = 512
+#: Fraction of the rays reaching a water surface that return: calm water mirrors a LiDAR's
+#: beam away, and the few returns come from foam, debris or turbidity (a sewer's flow).
+WATER_RETURN_FRACTION = 0.03
+#: The water's reflectivity (intensity of those few returns).
+WATER_REFLECTIVITY = 5.0
 
 HUME_PARAMS: dict[str, Any] = {
     "radius_m": 0.3,
@@ -58,6 +64,7 @@ HUME_PARAMS: dict[str, Any] = {
     "lateral_connection_depth_m": 0.25,
     "range_noise_m": 0.0015,
     "x_min_m": -0.3,
+    "water_depth_m": 0.0,
     **CHANGE_PARAMS,
 }
 
@@ -80,6 +87,7 @@ PE_PARAMS: dict[str, Any] = {
     "roughness_corr_m": 0.01,
     "range_noise_m": 0.0015,
     "x_min_m": -0.3,
+    "water_depth_m": 0.0,
     **CHANGE_PARAMS,
 }
 #: Per scene, the parameter that sets the spacing of the boundaries (joints, rings, arches).
@@ -131,12 +139,26 @@ def merge_params(
         p[key] = _coerce(scene, key, defaults[key], value)
     if p["radius_m"] <= 0.0:
         raise ValueError(f"{scene} scene parameter 'radius_m' must be > 0, got {p['radius_m']}")
+    depth = p.get("water_depth_m", 0.0)
+    if not 0.0 <= depth < p["radius_m"]:
+        raise ValueError(
+            f"{scene} scene parameter 'water_depth_m' must be in [0, radius_m = "
+            f"{p['radius_m']}) (a pipe at most half full), got {depth}"
+        )
     spacing = SPACING_KEYS[scene]
     if p[spacing] < MIN_SPACING_M:
         raise ValueError(
             f"{scene} scene parameter {spacing!r} must be >= {MIN_SPACING_M} m, got {p[spacing]}"
         )
     return p
+
+
+def water_level(p: dict[str, Any]) -> float | None:
+    """Height of the water surface in a pipe (the section centre at z = 0), or None for a dry
+    pipe: the water hides the wall below it and the sensor sees its surface as a floor that
+    seldom returns (:data:`WATER_RETURN_FRACTION`)."""
+    depth = float(p.get("water_depth_m", 0.0))
+    return -float(p["radius_m"]) + depth if depth > 0.0 else None
 
 
 def hume_params(overrides: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -355,13 +377,14 @@ def build_hume(
     return Scene(
         name="hume",
         radius_m=radius,
-        floor_z_m=None,
+        floor_z_m=water_level(p),
         x_min_m=x_min,
         x_max_m=x_max,
         joints_x_m=joints,
         range_noise_m=p["range_noise_m"],
         wall_terms=[rough, lips, grooves, connections],
-        reflectivity={KIND_WALL: 40.0, KIND_CAP: 30.0},
+        reflectivity={KIND_WALL: 40.0, KIND_CAP: 30.0, KIND_FLOOR: WATER_REFLECTIVITY},
+        return_fraction={KIND_FLOOR: WATER_RETURN_FRACTION},
         params={**p, "lateral_connections_x_m": [round(v, 4) for v in conn_x]},
     )
 
@@ -416,12 +439,13 @@ def build_pe(
     return Scene(
         name="pe",
         radius_m=radius,
-        floor_z_m=None,
+        floor_z_m=water_level(p),
         x_min_m=x_min,
         x_max_m=x_max,
         joints_x_m=joints,
         range_noise_m=p["range_noise_m"],
         wall_terms=[rough, ribs, lips, couplers],
-        reflectivity={KIND_WALL: 60.0, KIND_CAP: 30.0},
+        reflectivity={KIND_WALL: 60.0, KIND_CAP: 30.0, KIND_FLOOR: WATER_REFLECTIVITY},
+        return_fraction={KIND_FLOOR: WATER_RETURN_FRACTION},
         params=p,
     )

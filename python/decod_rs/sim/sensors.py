@@ -123,9 +123,11 @@ def measure(
     reflectivity: NDArray[np.float64],
     noise_m: float,
     rng: np.random.Generator,
+    return_fraction: NDArray[np.float64] | None = None,
 ) -> tuple[F64, NDArray[np.float32], NDArray[np.bool_]]:
     """Turn exact hits into measurements (world frame): range noise along the ray, dropouts
-    (random, grazing incidence, out of range) and intensity. Returns ``(points (M, 3),
+    (random, grazing incidence, out of range, and per surface kind ``return_fraction``,
+    indexed like ``reflectivity``, e.g. water) and intensity. Returns ``(points (M, 3),
     intensity (M,), keep (N,))``."""
     vec = hits.points - origin
     rng_true = np.linalg.norm(vec, axis=1)
@@ -135,6 +137,8 @@ def measure(
     grazing = np.rad2deg(np.arcsin(np.clip(hits.cos_incidence, 0.0, 1.0)))
     # Returns fade out linearly from twice the grazing cut-off down to the cut-off.
     p_keep = np.clip((grazing - spec.grazing_min_deg) / spec.grazing_min_deg, 0.0, 1.0)
+    if return_fraction is not None:
+        p_keep = p_keep * return_fraction[hits.kind]
     u = rng.random(n)
     u2 = rng.random(n)
     keep = (

@@ -148,6 +148,9 @@ class Scene:
     floor_terms: list[FloorTerm] = field(default_factory=list)
     arches: ArchSet | None = None
     reflectivity: dict[int, float] = field(default_factory=dict)
+    #: Fraction of the sensor's returns each surface kind gives back (a kind not listed: all
+    #: of them). A water surface (a pipe's ``water_depth_m``) mirrors the beam away.
+    return_fraction: dict[int, float] = field(default_factory=dict)
     params: dict[str, Any] = field(default_factory=dict)
 
     def wall_dr(self, x: F64, theta: F64) -> F64:
