@@ -657,6 +657,33 @@ def test_water_hides_the_bottom_of_a_pipe_and_seldom_returns() -> None:
         Simulation("hume", seed=0, length_m=2.0, scene_overrides={"water_depth_m": 0.28})
 
 
+def test_sensor_height_puts_the_sensor_above_the_invert_or_the_floor() -> None:
+    # A crawler low in a 1.2 m pipe (0.25 m above the invert) and a small robot in the 6 m
+    # shield (0.5 m above its floor, 2 m below the centre).
+    pipe = Simulation("hume", length_m=2.0, scene_overrides={"radius_m": 0.6}, sensor_height_m=0.25)
+    assert pipe.traj_spec.z0_m == pytest.approx(-0.6 + 0.25)
+    tunnel = Simulation("shield", length_m=6.0, sensor_height_m=0.5)
+    assert tunnel.traj_spec.z0_m == pytest.approx(-2.0 + 0.5)
+    assert Simulation("shield", length_m=6.0).traj_spec.z0_m == pytest.approx(-0.4)
+    # The points are still on the corridor's surface, seen from there.
+    data = generate(
+        "hume",
+        seed=1,
+        length_m=2.0,
+        sensor_overrides={"rays_per_scan": 2000},
+        scene_overrides={"radius_m": 0.6},
+        sensor_height_m=0.25,
+        scan_indices=[5],
+    )
+    world = data.points[0].astype(np.float64) @ data.gt_poses[0][:3, :3].T + data.gt_poses[0][:3, 3]
+    assert data.gt_poses[0][2, 3] == pytest.approx(-0.35, abs=0.02)
+    assert np.mean(_surface_residual(data.scene, world) < 0.01) > 0.99
+    # Outside the section, or at its wall, is refused by name.
+    for bad in (0.0, 1.2, float("nan")):
+        with pytest.raises(ValueError, match="sensor_height_m"):
+            Simulation("hume", length_m=2.0, scene_overrides={"radius_m": 0.6}, sensor_height_m=bad)
+
+
 def test_cli_scene_param(tmp_path: Path) -> None:
     args = ["simulate", "pe", "--out", str(tmp_path), "--length", "1.5", "--speed", "0.5"]
     args += ["--rays", "200", "--quiet", "--scene-param", "radius_m=0.3"]

@@ -81,6 +81,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "default straight",
     )
     p.add_argument(
+        "--height",
+        type=float,
+        default=None,
+        metavar="M",
+        help="the sensor's height in metres above the section's lowest point (a pipe's "
+        "invert, a tunnel's floor); default the scene's (near a pipe's centre, 1.6 m above a "
+        "tunnel's floor)",
+    )
+    p.add_argument(
         "--odometry",
         choices=["drift", "kiss-icp"],
         default="drift",
@@ -153,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         scene_overrides=dict(args.scene_params) or None,
         world_seed=args.world_seed,
         mount_deg=args.mount,
+        sensor_height_m=args.height,
         stops=args.stops,
         curve_radius_m=args.curve_radius,
         odometry=args.odometry,

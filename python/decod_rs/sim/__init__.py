@@ -20,6 +20,9 @@ Geometry overrides: ``simulate(..., scene_overrides={"radius_m": 0.5})`` (``deco
 A pipe's ``water_depth_m`` (below its radius, the sensor above it) fills its bottom with
 water: a floor at ``-radius + depth`` that returns ``WATER_RETURN_FRACTION`` (3 %) of the
 rays meeting it (calm water mirrors the beam away), recorded as ``axis.floor_z_m``.
+``sensor_height_m`` (``--height``) puts the sensor that high above the section's lowest
+point (a pipe's invert, a tunnel's floor) instead of near a pipe's centre or 1.6 m above a
+tunnel's floor.
 
 Drift profiles (:mod:`decod_rs.sim.drift`): an endpoint error in metres or a preset, or
 per-leg scale errors ``"legs:-0.05,-0.15"``, or scale errors changing along the way

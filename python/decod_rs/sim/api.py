@@ -79,12 +79,14 @@ class Simulation:
         mount_deg: tuple[float, float] = (0.0, 0.0),
         stops: Sequence[tuple[float, float, float]] = (),
         curve_radius_m: float | None = None,
+        sensor_height_m: float | None = None,
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
         # The world (scene geometry) may come from another seed than the run (noise, drift,
         # trajectory wobble): two inspections of one pipe (issue 12).
         self.world_seed = int(seed if world_seed is None else world_seed)
-        defaults = defaults_for(scene, scene_params(scene, self.scene_overrides))
+        params = scene_params(scene, self.scene_overrides)
+        defaults = _at_height(defaults_for(scene, params), params, sensor_height_m)
         self.seed = int(seed)
         self.distinctiveness = 1.0 if distinctiveness is None else float(distinctiveness)
         self.identical_joints = bool(identical_joints)
@@ -315,6 +317,7 @@ def generate(
     world_seed: int | None = None,
     mount_deg: tuple[float, float] = (0.0, 0.0),
     curve_radius_m: float | None = None,
+    sensor_height_m: float | None = None,
 ) -> SimData:
     """Simulate a run in memory (every scan, or only ``scan_indices``; the poses, IMU and
     drift always cover the whole run and ``stamps_ns`` the selected scans). Arguments as
@@ -334,6 +337,7 @@ def generate(
         world_seed=world_seed,
         mount_deg=mount_deg,
         curve_radius_m=curve_radius_m,
+        sensor_height_m=sensor_height_m,
     )
     idx = list(range(sim.n_scans)) if scan_indices is None else list(scan_indices)
     scans = [sim.scan(k) for k in idx]
@@ -586,6 +590,26 @@ def _trajectory_spec(
     )
 
 
+def _at_height(
+    defaults: SceneDefaults, params: dict[str, Any], height_m: float | None
+) -> SceneDefaults:
+    """``defaults`` with the sensor ``height_m`` above the section's lowest point (a tunnel's
+    floor, a pipe's invert); unchanged for None. ``ValueError`` unless the sensor stays
+    inside the section, a tenth of the radius from its top and bottom."""
+    if height_m is None:
+        return defaults
+    radius = float(params["radius_m"])
+    floor = params.get("floor_z_m")
+    bottom = -radius if floor is None else float(floor)
+    room = radius - bottom
+    if not (np.isfinite(height_m) and 0.1 * radius <= height_m <= room - 0.1 * radius):
+        raise ValueError(
+            f"sensor_height_m must be within {0.1 * radius:.3f}-{room - 0.1 * radius:.3f} m "
+            f"(inside the section, a tenth of the radius from its top and bottom), got {height_m}"
+        )
+    return replace(defaults, z0_m=bottom + float(height_m))
+
+
 def _mount(mount_deg: tuple[float, float]) -> tuple[float, float]:
     """``(roll, pitch)`` degrees checked: finite, roll within +-180, pitch within +-60 (a
     sensor pitched further does not look along the corridor)."""
@@ -615,6 +639,7 @@ def simulate(
     mount_deg: tuple[float, float] = (0.0, 0.0),
     stops: Sequence[tuple[float, float, float]] = (),
     curve_radius_m: float | None = None,
+    sensor_height_m: float | None = None,
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -640,6 +665,9 @@ def simulate(
     :class:`TrajectorySpec`), as an inspection robot makes at defects.
     ``curve_radius_m``: the corridor curves in the horizontal plane with this radius
     (positive to the left; :mod:`decod_rs.sim.bend`); None: straight.
+    ``sensor_height_m``: the sensor's height above the lowest point of the section (a
+    pipe's invert, a tunnel's floor) instead of the scene's (near the centre of a pipe, 1.6 m
+    above a tunnel's floor): a crawler low in a large pipe, a small robot in a tunnel.
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
@@ -669,6 +697,7 @@ def simulate(
         mount_deg=mount_deg,
         stops=stops,
         curve_radius_m=curve_radius_m,
+        sensor_height_m=sensor_height_m,
     )
     if overwrite:
         # Every argument checked (the Simulation refuses a bad one): only now is an earlier
