@@ -53,6 +53,14 @@ def _run(sim: Path, out: Path) -> tuple[dict, dict]:
     return result, report
 
 
+def _simulated_run(tmp_path: Path, scene: str, **sim_args: Any) -> tuple[dict, dict]:
+    """``scene`` simulated into ``tmp_path/sim`` with ``sim_args``, run into ``tmp_path/run``
+    and evaluated: the evaluation and ``report.json``."""
+    sim = tmp_path / "sim"
+    simulate(scene, sim, progress=False, **sim_args)
+    return _run(sim, tmp_path / "run")
+
+
 def _vertical_rms(sim: Path, run: Path) -> float:
     """RMS of the corrected trajectory's height error against the ground truth, metres."""
     gt_t, gt = read_tum(sim / "gt.tum")
@@ -111,18 +119,15 @@ def test_auto_configuration_gives_the_aliased_pipe_no_loop(
     seed: int, world_seed: int | None, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # Every joint identical: any accepted loop would be a guess.
-    sim = tmp_path / "sim"
-    simulate(
+    result, report = _simulated_run(
+        tmp_path,
         "hume",
-        sim,
         seed=seed,
         world_seed=world_seed,
         length_m=30.0,
         drift=2.0,
         identical_joints=True,
-        progress=False,
     )
-    result, report = _run(sim, tmp_path / "run")
     # decod run's summary says what auto chose and why there is no loop.
     print_setup(read_report(tmp_path / "run"))
     lines = capsys.readouterr().out.splitlines()
@@ -144,9 +149,9 @@ def test_a_steel_arch_tunnel_seen_by_64_beams_keeps_its_submaps(tmp_path: Path) 
     # contour gate 46 % of these submaps were rejected as "contour does not fit" (matrix,
     # seeds 0 and 1). auto measures that relief on its probes and widens the gate to it; a
     # shield lining (one smooth surface) keeps the paper's gate. Seed 22 is new to both.
-    sim = tmp_path / "sim"
-    simulate("horseshoe", sim, seed=22, sensor="spin64", length_m=25.0, drift=2.0, progress=False)
-    result, report = _run(sim, tmp_path / "run")
+    result, report = _simulated_run(
+        tmp_path, "horseshoe", seed=22, sensor="spin64", length_m=25.0, drift=2.0
+    )
     auto = report["auto"]
     radius, relief = auto["measured"]["radius_m"], auto["measured"]["relief_m"]
     assert 0.1 < relief < 0.4, auto["measured"]  # arches 0.2 m + overbreak, 90th percentile
@@ -174,18 +179,15 @@ def test_a_crawler_that_stops_along_the_way_is_corrected(tmp_path: Path) -> None
 def _corrected_crawler_run(tmp_path: Path, **sim_args: Any) -> dict:
     """A 20 m hume pipe at 0.3 m/s seen by the forward sensor, reversing, simulated with
     ``sim_args`` and run: at least 10 loops, none wrong, RMSE cut by 80 %. Its report."""
-    sim = tmp_path / "sim"
-    simulate(
+    result, report = _simulated_run(
+        tmp_path,
         "hume",
-        sim,
         sensor="avia",
         return_mode="reverse",
         length_m=20.0,
         speed_mps=0.3,
-        progress=False,
         **sim_args,
     )
-    result, report = _run(sim, tmp_path / "run")
     _assert_corrected(result, report)
     return report
 
@@ -241,10 +243,9 @@ def test_a_tunnel_on_a_curve_is_corrected_without_being_straightened(
     # 211, the first curved logs decod saw): RMSE -60 % in a 6 m shield on a 300 m curve.
     # Now `auto` sees the odometry's path curve and fits each submap's centre line
     # (src/centre_line.rs). This log (seed 25) was not used to build it.
-    sim = tmp_path / "sim"
-    simulate(
+    result, report = _simulated_run(
+        tmp_path,
         "horseshoe",
-        sim,
         seed=25,
         sensor="spin16",
         return_mode="turn",
@@ -252,9 +253,7 @@ def test_a_tunnel_on_a_curve_is_corrected_without_being_straightened(
         speed_mps=1.0,
         drift=1.5,
         curve_radius_m=-100.0,
-        progress=False,
     )
-    result, report = _run(sim, tmp_path / "run")
     assert report["auto"]["derived"]["axis"]["curved"], report["auto"]
     assert report["auto"]["measured"]["curvature_per_m"] == pytest.approx(0.01, rel=0.15)
     print_setup(report)
@@ -274,19 +273,16 @@ def test_a_pipe_part_full_of_water_is_corrected(
     # (`wall_share`) and fills that part of the descriptors, not the whole section, so the
     # windows stay as short as the drift needs. This log (seed 30): 55 loops, RMSE 0.84 ->
     # 0.005 m.
-    sim = tmp_path / "sim"
-    simulate(
+    result, report = _simulated_run(
+        tmp_path,
         "hume",
-        sim,
         seed=30,
         sensor="spin16",
         length_m=20.0,
         speed_mps=0.4,
         drift="legs:-0.05,-0.15",
         scene_overrides={"water_depth_m": 0.18},
-        progress=False,
     )
-    result, report = _run(sim, tmp_path / "run")
     share = report["auto"]["measured"]["wall_share"]
     # Above the water line (66 deg from the bottom): 0.76 of the 300 deg outside the mask.
     assert 0.65 <= share <= 0.85, report["auto"]["measured"]

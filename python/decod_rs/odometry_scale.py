@@ -86,7 +86,7 @@ from numpy.typing import NDArray
 
 from decod_rs.graph import LoopConstraint
 from decod_rs.maps import pass_of
-from decod_rs.path_curve import path_length
+from decod_rs.path_curve import path_length, points_along
 
 FloatArray = NDArray[np.float64]
 
@@ -299,11 +299,8 @@ def travel_directions(positions: FloatArray, fallback: FloatArray) -> FloatArray
         return np.zeros((0, 3))
     travel = path_length(p)
     mid = 0.5 * (travel[1:] + travel[:-1])
-
-    def at(d: FloatArray) -> FloatArray:
-        return np.column_stack([np.interp(d, travel, p[:, i]) for i in range(3)])
-
-    chord = at(mid + TANGENT_HALF_WINDOW_M) - at(mid - TANGENT_HALF_WINDOW_M)
+    ahead = points_along(p, travel, mid + TANGENT_HALF_WINDOW_M)
+    chord = ahead - points_along(p, travel, mid - TANGENT_HALF_WINDOW_M)
     norm = np.linalg.norm(chord, axis=1, keepdims=True)
     return np.where(norm > 1e-9, chord / np.maximum(norm, 1e-12), np.asarray(fallback)[None, :])
 

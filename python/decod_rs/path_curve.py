@@ -32,13 +32,20 @@ STEP_M = 0.25
 #: The percentile of the windows' curvatures that is the log's.
 PERCENTILE = 75.0
 
-__all__ = ["PERCENTILE", "STEP_M", "path_curvature", "path_length"]
+__all__ = ["PERCENTILE", "STEP_M", "path_curvature", "path_length", "points_along"]
 
 
 def path_length(positions: FloatArray) -> FloatArray:
     """``(N,)`` distance travelled along ``positions`` (N, 3) up to each, metres (0 first)."""
     steps = np.linalg.norm(np.diff(np.asarray(positions, dtype=np.float64), axis=0), axis=1)
     return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def points_along(positions: FloatArray, lengths: FloatArray, at: FloatArray) -> FloatArray:
+    """``(M, 3)`` points of the path ``positions`` (N, 3), whose travel to each is ``lengths``
+    (:func:`path_length`), at the travels ``at`` (M,), linearly between its points and
+    clamped at its ends."""
+    return np.column_stack([np.interp(at, lengths, positions[:, i]) for i in range(3)])
 
 
 def path_curvature(positions: FloatArray, window_m: float) -> float:
@@ -51,7 +58,7 @@ def path_curvature(positions: FloatArray, window_m: float) -> float:
     grid = np.arange(0.0, s[-1], STEP_M)
     if grid.size < 3:
         return 0.0
-    q = np.column_stack([np.interp(grid, s, p[:, i]) for i in range(3)])
+    q = points_along(p, s, grid)
     t = np.gradient(q, axis=0)
     t /= np.linalg.norm(t, axis=1, keepdims=True) + 1e-12
     reversals = np.flatnonzero(np.einsum("ij,ij->i", t[1:], t[:-1]) < 0.0) + 1
