@@ -9,6 +9,7 @@
 //! Bindings are in `src/python/`, behind the `python` feature, and nothing else imports pyo3.
 #![warn(missing_docs)]
 
+mod accumulate;
 pub mod axis;
 pub mod boundary;
 pub mod centre_line;

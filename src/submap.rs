@@ -32,18 +32,19 @@ pub(crate) fn voxel_index(v: f64, voxel: f64) -> i64 {
 /// with no second pass to re-pack them.
 struct WindowKeys {
     voxel: f64,
-    lo: i64,
+    lo: i32,
     bits: u32,
 }
 
 impl WindowKeys {
     fn new(voxel: f64, max_range: f64) -> Self {
-        // One voxel of margin each side for the rounding of `v / voxel`.
-        let reach = (max_range / voxel).ceil() as i64 + 1;
+        // One voxel of margin each side for the rounding of `v / voxel`; the config keeps
+        // `max_range / voxel` below `VOXEL_INDEX_LIMIT`, so `reach` fits an i32.
+        let reach = ((max_range / voxel).ceil() as i64 + 1).min(VOXEL_INDEX_LIMIT + 1);
         let bits = 64 - ((2 * reach + 1) as u64).leading_zeros();
         Self {
             voxel,
-            lo: -reach,
+            lo: -(reach as i32),
             bits,
         }
     }
@@ -53,10 +54,20 @@ impl WindowKeys {
     }
 
     /// The key of `q`; an index outside the window (never for a kept point) is clamped.
+    /// Computed in f64 to the end: the floor (`roundpd` where [`crate::accumulate`] runs it
+    /// with SSE4.1 or later) is exact, so are the small integers after it, and adding 2^52
+    /// puts an integer in `[0, 2^31)` into the low bits of the mantissa, so the conversion is
+    /// a bit pattern rather than a scalar `cvttsd2si` per coordinate (AVX2 has no vector f64
+    /// to integer conversion with Rust's saturation): the same indices as [`voxel_index`].
     #[inline(always)]
     fn key(&self, x: f64, y: f64, z: f64) -> u32 {
-        let max = (1i64 << self.bits) - 1;
-        let index = |v: f64| (voxel_index(v, self.voxel) - self.lo).clamp(0, max) as u32;
+        const TWO_52: f64 = 4_503_599_627_370_496.0;
+        let max = f64::from((1u32 << self.bits) - 1);
+        let lo = f64::from(self.lo);
+        let index = |v: f64| {
+            let i = ((v / self.voxel).floor() - lo).clamp(0.0, max);
+            (i + TWO_52).to_bits() as u32
+        };
         (index(x) << (2 * self.bits)) | (index(y) << self.bits) | index(z)
     }
 }
@@ -109,45 +120,6 @@ fn run_means<K: PartialEq>(rows: &[(K, [f32; 3])]) -> Vec<[f32; 3]> {
     out
 }
 
-/// Every `stride`-th point of `scans` (from offset `k % stride` in scan `k`) kept by the
-/// range window (closer than `sqrt(min_r2)` to its own sensor or farther than `sqrt(max_r2)`
-/// from the anchor: dropped), in the anchor frame, with its voxel key.
-fn accumulate<K>(
-    scans: &[Scan],
-    anchor_from_world: &Pose,
-    (min_r2, max_r2): (f64, f64),
-    stride: usize,
-    key: impl Fn(&Vector3<f64>) -> K,
-) -> Vec<(K, [f32; 3])> {
-    let stride = stride.max(1);
-    let total: usize = scans
-        .iter()
-        .map(|s| s.points_in_body.len() / stride + 1)
-        .sum();
-    let mut rows = Vec::with_capacity(total);
-    for (k, scan) in scans.iter().enumerate() {
-        let anchor_from_body = (anchor_from_world * scan.world_from_body).to_homogeneous();
-        let rotation = anchor_from_body.fixed_view::<3, 3>(0, 0).into_owned();
-        let translation = anchor_from_body.fixed_view::<3, 1>(0, 3).into_owned();
-        // A point farther from its sensor than the range plus the sensor's distance from the
-        // anchor (and a micrometre for rounding) lies beyond the range from the anchor too.
-        let beyond = (max_r2.sqrt() + translation.norm() + 1e-6).powi(2);
-        for p in scan.points_in_body.iter().skip(k % stride).step_by(stride) {
-            let body = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-            let r2 = body.norm_squared();
-            if r2 < min_r2 || r2 > beyond {
-                continue;
-            }
-            let q = rotation * body + translation;
-            if q.norm_squared() > max_r2 {
-                continue;
-            }
-            rows.push((key(&q), [q.x as f32, q.y as f32, q.z as f32]));
-        }
-    }
-    rows
-}
-
 /// [`run_means`] of `rows` sorted by the low `bits` bits of their keys ([`radix`]).
 fn sorted_means<K: Copy + PartialEq + Into<u64>>(
     mut rows: Vec<(K, [f32; 3])>,
@@ -159,6 +131,7 @@ fn sorted_means<K: Copy + PartialEq + Into<u64>>(
 
 use nalgebra::Vector3;
 
+use crate::accumulate::accumulate;
 use crate::config::SubmapConfig;
 use crate::error::{DecodError, Result};
 use crate::geometry::Pose;
@@ -221,13 +194,13 @@ impl Submap {
         let keys = WindowKeys::new(voxel, max_range);
         let (ranges, stride) = ((min_r2, max_r2), cfg.point_stride);
         let points_in_anchor = if keys.fits_u32() {
-            let rows = accumulate(scans, &anchor_from_world, ranges, stride, |q| {
-                keys.key(q.x, q.y, q.z)
+            let rows = accumulate(scans, &anchor_from_world, ranges, stride, |x, y, z| {
+                keys.key(x, y, z)
             });
             sorted_means(rows, 3 * keys.bits)
         } else {
-            let rows = accumulate(scans, &anchor_from_world, ranges, stride, |q| {
-                voxel_key_of(q.x, q.y, q.z, voxel)
+            let rows = accumulate(scans, &anchor_from_world, ranges, stride, |x, y, z| {
+                voxel_key_of(x, y, z, voxel)
             });
             voxel_centroids(rows)
         };
