@@ -18,7 +18,7 @@ import decod_rs.pipeline
 from decod_rs import _core
 from decod_rs.cli import main as cli_main
 from decod_rs.config import load_config
-from decod_rs.ingest import WEAK_GAP_SIGMA_FACTOR, gap_bridges
+from decod_rs.ingest import WEAK_GAP_SIGMA_FACTOR, gap_bridges, outside_odometry, unused_ends
 from decod_rs.io import read_log
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -116,6 +116,39 @@ def test_restarted_odometry_is_bridged_by_a_weak_factor(sim: Path, tmp_path: Pat
     assert gap["bridge"] == "weak" and gap["scans_skipped"] > 0
     corrected = np.loadtxt(tmp_path / "out" / "corrected.tum")
     assert np.all(np.isfinite(corrected))
+
+
+def test_clouds_without_odometry_at_either_end_are_named(sim: Path, tmp_path: Path) -> None:
+    """An odometry file that starts 6 s late and stops 10 s early (a recording started
+    before the SLAM, a TUM export cut short): the clouds outside it are not used, and the
+    run says how many, when and for how long, instead of shrinking the log silently."""
+    rows = np.loadtxt(sim / "odom.tum")
+    t0, t1 = rows[0, 0], rows[-1, 0]
+    tum = tmp_path / "short.tum"
+    np.savetxt(tum, rows[(rows[:, 0] >= t0 + 6.0) & (rows[:, 0] <= t1 - 10.0)], fmt="%.9f")
+    with pytest.warns(decod_rs.LogWarning) as caught:
+        report = _run(sim / "log", tmp_path / "out", odom_tum=tum)
+    (text,) = [str(w.message) for w in caught if issubclass(w.category, decod_rs.LogWarning)]
+    assert "clouds before the odometry's first pose" in text
+    assert "clouds after the odometry's last pose" in text
+    ends = report["ingest"]["scans_outside_odometry"]
+    # 10 scans a second: about 60 clouds before, 100 after.
+    assert 55 <= ends["before"]["clouds"] <= 61 and 95 <= ends["after"]["clouds"] <= 101
+    assert ends["before"]["span_s"][0] == pytest.approx(t0, abs=0.11)
+    assert ends["after"]["span_s"][1] == pytest.approx(t1, abs=0.11)
+    total = ends["before"]["clouds"] + ends["after"]["clouds"]
+    assert report["counts"]["skipped_outside_odometry"] == total
+    assert report["counts"]["scans"] + total == 491
+
+
+def test_a_cloud_or_two_before_the_odometry_is_not_a_warning() -> None:
+    stamps = np.arange(100.0, 110.0, 0.1)
+    section = outside_odometry([99.9, 99.95, 110.0], stamps)
+    assert section["before"]["clouds"] == 2 and section["after"]["clouds"] == 1
+    assert unused_ends(section, stamps, gap_periods=5.0) == []
+    late = outside_odometry(np.arange(99.0, 100.0, 0.1), stamps)
+    (phrase,) = unused_ends(late, stamps, gap_periods=5.0)
+    assert phrase.startswith("10 clouds before the odometry's first pose")
 
 
 def test_gap_bridge_is_weak_when_the_odometry_jumps() -> None:

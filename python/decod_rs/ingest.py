@@ -18,7 +18,8 @@ once, and decides how the pose graph joins the two sides of each gap:
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -38,7 +39,15 @@ WEAK_GAP_SIGMA_FACTOR = 1e3
 #: Out-of-order stamps listed in the report (the rest are counted).
 MAX_LISTED = 100
 
-__all__ = ["LogFaultInfo", "LogWarning", "StreamHealth", "gap_bridges", "ingest_section"]
+__all__ = [
+    "LogFaultInfo",
+    "LogWarning",
+    "StreamHealth",
+    "gap_bridges",
+    "ingest_section",
+    "outside_odometry",
+    "unused_ends",
+]
 
 
 class LogWarning(UserWarning):
@@ -93,10 +102,13 @@ class StreamHealth:
     out_of_order: list[tuple[float, float]]
     clouds: dict[str, int]
     message_errors: list[str]
+    #: Stamps of the clouds before the odometry's first pose or after its last (not used).
+    outside_odometry: list[float] = field(default_factory=list)
 
     @classmethod
-    def from_core(cls, row: Any) -> StreamHealth:
-        """From the tuple ``health()`` returns (``src/python/io.rs`` ``HealthRow``)."""
+    def from_core(cls, row: Any, outside_odometry: Sequence[float] = ()) -> StreamHealth:
+        """From the tuple ``health()`` returns (``src/python/io.rs`` ``HealthRow``) and the
+        processor's ``skipped_outside_odometry()``."""
         faults, gaps, in_gaps, order, counts, errors = row
         names = ("messages", "undecodable", "zero_size", "empty", "non_finite_points")
         return cls(
@@ -106,6 +118,7 @@ class StreamHealth:
             out_of_order=[(float(a), float(b)) for a, b in order],
             clouds=dict(zip((*names, "out_of_order"), (int(c) for c in counts), strict=True)),
             message_errors=list(errors),
+            outside_odometry=[float(t) for t in outside_odometry],
         )
 
     def problems(self) -> int:
@@ -201,6 +214,7 @@ def ingest_section(
         "odometry_gap_periods": gap_periods,
         "odometry_gaps": gaps,
         "scans_skipped_in_gaps": len(health.skipped_in_gaps),
+        "scans_outside_odometry": outside_odometry(health.outside_odometry, scans[0]),
         "out_of_order_scans": [
             {"stamp": t, "previous_stamp": p} for t, p in health.out_of_order[:MAX_LISTED]
         ],
@@ -210,11 +224,64 @@ def ingest_section(
     return section, factors
 
 
-def warn_once(log: object, health: StreamHealth) -> None:
-    """One :class:`LogWarning` summing up what the log had, if it had anything."""
-    if not health.problems():
+def outside_odometry(outside: Sequence[float], scan_stamps: FloatArray) -> dict[str, Any]:
+    """``ingest.scans_outside_odometry``: the clouds before the first scan paired with
+    odometry and after the last (``clouds``; ``span_s``: their first and last stamps,
+    ``None`` when there are none). Clouds inside the span but in a gap are the gaps'."""
+    t = np.sort(np.asarray(outside, dtype=np.float64))
+    stamps = np.asarray(scan_stamps, dtype=np.float64)
+    first = stamps[0] if stamps.size else np.inf
+    last = stamps[-1] if stamps.size else np.inf
+    ends = {"before": t[t < first], "after": t[t > last]}
+    return {
+        side: {
+            "clouds": int(v.size),
+            "span_s": [float(v[0]), float(v[-1])] if v.size else None,
+        }
+        for side, v in ends.items()
+    }
+
+
+def unused_ends(section: dict[str, Any], scan_stamps: FloatArray, gap_periods: float) -> list[str]:
+    """What :func:`outside_odometry` found that deserves a warning, one phrase per end: a
+    stretch of clouds without odometry before its first pose or after its last that lasts as
+    long as an odometry gap would (``submap.odometry_gap_periods`` scan periods; a cloud or
+    two before the odometry starts is how logs begin, not lost data)."""
+    stamps = np.asarray(scan_stamps, dtype=np.float64)
+    period = float(np.median(np.diff(stamps))) if stamps.size > 1 else 0.0
+    phrases = []
+    for side, pose in (("before", "first"), ("after", "last")):
+        end = section[side]
+        if not end["clouds"]:
+            continue
+        a, b = end["span_s"]
+        if stamps.size:  # from the first unused cloud to the first used scan, or likewise
+            lasting = float(stamps[0]) - a if side == "before" else b - float(stamps[-1])
+        else:
+            lasting = b - a
+        if lasting >= gap_periods * period:
+            phrases.append(
+                f"{end['clouds']} clouds {side} the odometry's {pose} pose "
+                f"({a:.3f}-{b:.3f} s, {lasting:.1f} s) were not used"
+            )
+    return phrases
+
+
+def warn_once(
+    log: object,
+    health: StreamHealth,
+    scan_stamps: FloatArray | None = None,
+    gap_periods: float = 5.0,
+) -> None:
+    """One :class:`LogWarning` summing up what the log had, if it had anything (with the
+    scans used, ``scan_stamps``, also clouds left without odometry at either end)."""
+    ends: list[str] = []
+    if scan_stamps is not None:
+        section = outside_odometry(health.outside_odometry, scan_stamps)
+        ends = unused_ends(section, scan_stamps, gap_periods)
+    if not health.problems() and not ends:
         return
-    parts = [f.message for f in health.faults[:3]]
+    parts = [f.message for f in health.faults[:3]] + ends
     if health.gaps:
         parts.append(f"{len(health.gaps)} odometry gap(s) not interpolated")
     c = health.clouds

@@ -197,7 +197,7 @@ def finish_run(
         run_plots(out, *scans, correction.poses, kept, ex.landmarks, odometry_only[0], faces)
         timings["plots"] = time.perf_counter() - t0
 
-    summary = run_summary(out, ex, matched, scans, timings)
+    summary = run_summary(out, ex, matched, scans, timings, processor)
     report = run_report(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )

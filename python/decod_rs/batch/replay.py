@@ -98,7 +98,9 @@ def run_from_extraction(
     opts = extraction.options
     if opts.mode not in MODES:
         raise ValueError(f"mode: {opts.mode!r} is not one of {MODES}")
-    health = StreamHealth.from_core(extraction.processor.health())
+    health = StreamHealth.from_core(
+        extraction.processor.health(), extraction.processor.skipped_outside_odometry
+    )
     gap_periods = float(extraction.cfg.submap.odometry_gap_periods)
     anchors = np.asarray(extraction.extracted.anchor_stamps, dtype=np.float64)
     ingest, gap_factors = ingest_section(

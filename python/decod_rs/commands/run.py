@@ -96,7 +96,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def print_summary(summary: RunSummary) -> None:
     t = summary.timings_s
     stages = ", ".join(f"{k} {v:.2f} s" for k, v in t.items())
-    print(f"scans          {summary.scans} ({summary.log_duration_s:.1f} s of log)")
+    unused = summary.clouds_outside_odometry
+    outside = f"; {unused} clouds outside the odometry's span not used" if unused else ""
+    print(f"scans          {summary.scans} ({summary.log_duration_s:.1f} s of log{outside})")
     cut = summary.end_face_submaps
     ends = f" ({cut} cut before an end face in view)" if cut else ""
     print(f"submaps        {summary.submaps}, landmarks {summary.landmarks}{ends}")

@@ -149,17 +149,18 @@ def extract_stage(
     keep_map: bool,
     imu_samples: FloatArray | None,
 ) -> tuple[Extracted, dict[str, Any]]:
-    """Stage 1 on a configured run: the log streamed into submaps and landmarks, the
-    stream's damage and gaps warned about once (the run goes on with what the log holds),
-    and ``report.json``'s ``ingest`` section; ``ValueError`` naming the log when no scan
-    pairs with odometry. ``keep_map``: keep the voxel map (2-12 % of the stream's time)."""
+    """Stage 1 on a configured run: the log streamed into submaps and landmarks; the
+    stream's damage, gaps and clouds left without odometry at either end warned about once
+    (the run goes on with what the log holds); and ``report.json``'s ``ingest`` section;
+    ``ValueError`` naming the log when no scan pairs with odometry. ``keep_map``: keep the
+    voxel map (2-12 % of the stream's time)."""
     processor, ex = extract(log, cfg, *topics, progress, keep_map=keep_map, imu_samples=imu_samples)
     scans = scan_odometry(processor)
-    health = StreamHealth.from_core(processor.health())
-    warn_once(log, health)
+    health = StreamHealth.from_core(processor.health(), processor.skipped_outside_odometry)
+    gap_periods = float(cfg.submap.odometry_gap_periods)
+    warn_once(log, health, scans[0], gap_periods)
     if scans[0].size == 0:
         raise ValueError(f"{log}: no scan could be paired with odometry")
-    gap_periods = float(cfg.submap.odometry_gap_periods)
     anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
     ingest, gap_factors = ingest_section(
         health, processor.points_topic, scans, gap_periods, anchors

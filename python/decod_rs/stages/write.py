@@ -55,6 +55,8 @@ class RunSummary:
     rejections: dict[str, int] = field(default_factory=dict)
     #: Submaps cut before an end face in view (``report.json`` ``counts``).
     end_face_submaps: int = 0
+    #: Clouds before the odometry's first pose or after its last (``ingest``), not used.
+    clouds_outside_odometry: int = 0
 
     @property
     def realtime_factor(self) -> float:
@@ -179,6 +181,7 @@ def run_summary(
     matched: Matched,
     scans: tuple[FloatArray, FloatArray],
     timings: dict[str, float],
+    processor: _core.LogProcessor,
 ) -> RunSummary:
     return RunSummary(
         out_dir=out,
@@ -193,6 +196,7 @@ def run_summary(
         timings_s=timings,
         rejections=ex.rejections,
         end_face_submaps=ex.end_face_submaps,
+        clouds_outside_odometry=len(processor.skipped_outside_odometry),
     )
 
 
