@@ -186,6 +186,14 @@ def print_setup(report: dict[str, Any]) -> None:
                 f"wall seen      {100 * share:.0f} % of the section above the bottom (water or "
                 "debris hides the rest): submaps fill that part"
             )
+    jitter = (report.get("ingest") or {}).get("odometry_jitter")
+    if jitter and jitter["smoothed"]:
+        scatter, limit = 1e3 * jitter["jitter_m"], 1e3 * jitter["threshold_m"]
+        print(
+            f"jitter         the odometry's poses scatter {scatter:.1f} mm about a smooth fit "
+            f"(> {limit:.1f} mm, a quarter voxel): the run's odometry is its fit over "
+            f"{jitter['fit_window_s']:.1f} s"
+        )
     if report.get("no_loop_reason"):
         print(f"no loop        {report['no_loop_reason']}")
 

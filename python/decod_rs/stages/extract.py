@@ -5,7 +5,8 @@ submaps at a time (memory bounded by the submaps in flight)."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+import tempfile
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +19,10 @@ from decod_rs.autoscale import auto_config, probe_corridor
 from decod_rs.config import Config, load_config
 from decod_rs.end_faces import FaceView
 from decod_rs.ingest import StreamHealth, ingest_section, warn_once
+from decod_rs.jitter import smoothing
 from decod_rs.progress import Progress
 from decod_rs.survey import Survey, survey_config
+from decod_rs.tum import interpolate_poses, write_tum
 
 FloatArray = NDArray[np.float64]
 #: A run's topics: points, odometry, odometry TUM file, IMU (None: found or not used).
@@ -54,6 +57,39 @@ class Extracted:
     scans: tuple[FloatArray, FloatArray]
     gap_factors: FloatArray | None = None
     imu_topic: str | None = None
+
+
+def restitched(
+    extraction: Extracted, cfg: Config, poses: FloatArray, progress: bool, label: str
+) -> SubmapLandmarks:
+    """Stage 1 again, the submaps stitched on ``poses`` (N, 4, 4) at the scan stamps, the
+    anchors placed on the odometry like the first ones (the graph's nodes; a submap's frame is
+    its anchor scan's body frame whichever poses stitched it): for the corrected trajectory
+    (:mod:`decod_rs.refinement`) and for the odometry's smooth fit (:mod:`decod_rs.jitter`),
+    then also the run's odometry."""
+    stamps, odometry = extraction.scans
+    with tempfile.TemporaryDirectory(prefix="decod-restitch-") as tmp:
+        tum = Path(tmp) / "stitching.tum"
+        write_tum(tum, stamps, poses)
+        points = extraction.processor.points_topic
+        # The IMU the first extraction read: with the odometry from the file above, the log is
+        # then read once, for its scans (not once more for the IMU).
+        imu = extraction.processor.imu_samples()
+        topic = extraction.imu_topic if imu is None else None
+        _, ex = extract(
+            extraction.log,
+            cfg,
+            points,
+            None,
+            tum,
+            topic,
+            progress,
+            imu_samples=imu,
+            label=label,
+        )
+    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
+    ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
+    return ex
 
 
 def configure(
@@ -165,4 +201,13 @@ def extract_stage(
     ingest, gap_factors = ingest_section(
         health, processor.points_topic, scans, gap_periods, anchors
     )
-    return Extracted(log, processor, ex, scans, gap_factors, topics[3]), ingest
+    smooth = smoothing(*scans, cfg)
+    ingest["odometry_jitter"] = smooth.report()
+    extraction = Extracted(log, processor, ex, scans, gap_factors, topics[3])
+    if smooth.applied:  # the run's odometry is the fit: the submaps again, stitched on it
+        scans = (scans[0], smooth.fitted(*scans))
+        extraction = replace(extraction, scans=scans)
+        extraction = replace(
+            extraction, extracted=restitched(extraction, cfg, scans[1], progress, "smoothed")
+        )
+    return extraction, ingest

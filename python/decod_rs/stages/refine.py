@@ -3,19 +3,16 @@ them differently enough (:mod:`decod_rs.refinement` decides and judges the round
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.config import Config
 from decod_rs.refinement import MAX_ROUNDS, RebuildDecision, rebuild_decision
-from decod_rs.stages.extract import Extracted, SubmapLandmarks, extract
+from decod_rs.stages.extract import Extracted, SubmapLandmarks, restitched
 from decod_rs.stages.match import Matched, match_and_select
 from decod_rs.stages.solve import Solved, solve
-from decod_rs.tum import interpolate_poses, write_tum
 
 FloatArray = NDArray[np.float64]
 
@@ -25,29 +22,7 @@ def rebuild(
 ) -> SubmapLandmarks:
     """Stage 1 again, the submaps stitched by the corrected trajectory; the anchors placed
     on the odometry like the first ones (:mod:`decod_rs.refinement`)."""
-    stamps, odometry = extraction.scans
-    with tempfile.TemporaryDirectory(prefix="decod-rebuild-") as tmp:
-        tum = Path(tmp) / "corrected.tum"
-        write_tum(tum, stamps, corrected)
-        points = extraction.processor.points_topic
-        # The IMU the first extraction read: with the odometry from the file above, the log is
-        # then read once, for its scans (not once more for the IMU).
-        imu = extraction.processor.imu_samples()
-        topic = extraction.imu_topic if imu is None else None
-        _, ex = extract(
-            extraction.log,
-            cfg,
-            points,
-            None,
-            tum,
-            topic,
-            progress,
-            imu_samples=imu,
-            label="rebuild",
-        )
-    anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
-    ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
-    return ex
+    return restitched(extraction, cfg, corrected, progress, "rebuild")
 
 
 def rescaled_passes(solved: Solved) -> int:
