@@ -149,13 +149,13 @@ def test_batch_falls_back_to_a_process_pool(corrupt: Path, tmp_path: Path) -> No
 
 def _count_extractions(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     calls: list[Path] = []
-    extract = replay.extract
+    extract = replay.extract_stage
 
     def counting(log: Path, *args: Any, **kwargs: Any) -> Any:
         calls.append(log)
         return extract(log, *args, **kwargs)
 
-    monkeypatch.setattr(replay, "extract", counting)
+    monkeypatch.setattr(replay, "extract_stage", counting)
     return calls
 
 

@@ -21,11 +21,10 @@ from decod_rs import _core
 from decod_rs.batch.grid import REPLAYED_SECTIONS, apply_params
 from decod_rs.batch.jobs import RunOptions
 from decod_rs.config import Config
-from decod_rs.ingest import StreamHealth, ingest_section
 from decod_rs.io import find_imu_topic
 from decod_rs.pipeline import MODES, Extracted, RunSummary, Visuals, finish_run
 from decod_rs.run_files import staged_run_dir
-from decod_rs.stages.extract import SubmapLandmarks, configure, extract, scan_odometry
+from decod_rs.stages.extract import SubmapLandmarks, configure, extract_stage
 
 FloatArray = NDArray[np.float64]
 
@@ -34,21 +33,35 @@ __all__ = ["Extraction", "extract_log", "run_from_extraction"]
 
 @dataclass
 class Extraction:
-    """Stage 1 of one log, kept for replays: the processor (scan stamps, topics, what was
-    skipped), the landmarks and anchors, the scans' odometry, the config it ran with and the
-    base config before extraction parameters, ``auto``'s report, the IMU topic and the
-    seconds spent configuring and extracting."""
+    """Stage 1 of one log, kept for replays: ``run_log``'s stage 1 result (the processor,
+    the landmarks and anchors, the scans' odometry, the gap factors) and its ``ingest``
+    section, the config it ran with and the base config before extraction parameters,
+    ``auto``'s report and the seconds spent configuring and extracting."""
 
     log: Path
     options: RunOptions
-    processor: _core.LogProcessor
-    extracted: SubmapLandmarks
-    scans: tuple[FloatArray, FloatArray]
+    stage: Extracted
+    ingest: dict[str, Any]
     base_cfg: Config
     cfg: Config
     auto: dict[str, Any] | None
-    imu_topic: str | None
     timings_s: dict[str, float]
+
+    @property
+    def processor(self) -> _core.LogProcessor:
+        return self.stage.processor
+
+    @property
+    def extracted(self) -> SubmapLandmarks:
+        return self.stage.extracted
+
+    @property
+    def scans(self) -> tuple[FloatArray, FloatArray]:
+        return self.stage.scans
+
+    @property
+    def imu_topic(self) -> str | None:
+        return self.stage.imu_topic
 
 
 def _extraction_sections(cfg: Config) -> dict[str, Any]:
@@ -70,15 +83,9 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
     cfg = apply_params(base, params) if params else base
     configure_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    processor, extracted = extract(log, cfg, *topics, False, keep_map=options.map, imu_samples=imu)
-    extract_s = time.perf_counter() - t0
-    scans = scan_odometry(processor)
-    if scans[0].size == 0:
-        raise ValueError(f"{log}: no scan could be paired with odometry")
-    timings = {"configure": configure_s, "extract": extract_s}
-    return Extraction(
-        log, options, processor, extracted, scans, base, cfg, auto, imu_topic, timings
-    )
+    stage, ingest = extract_stage(log, cfg, topics, False, keep_map=options.map, imu_samples=imu)
+    timings = {"configure": configure_s, "extract": time.perf_counter() - t0}
+    return Extraction(log, options, stage, ingest, base, cfg, auto, timings)
 
 
 def run_from_extraction(
@@ -98,33 +105,17 @@ def run_from_extraction(
     opts = extraction.options
     if opts.mode not in MODES:
         raise ValueError(f"mode: {opts.mode!r} is not one of {MODES}")
-    health = StreamHealth.from_core(
-        extraction.processor.health(), extraction.processor.skipped_outside_odometry
-    )
-    gap_periods = float(extraction.cfg.submap.odometry_gap_periods)
-    anchors = np.asarray(extraction.extracted.anchor_stamps, dtype=np.float64)
-    ingest, gap_factors = ingest_section(
-        health, extraction.processor.points_topic, extraction.scans, gap_periods, anchors
-    )
     head = {
         "preset": opts.preset,
         "auto": extraction.auto,
         "imu_topic": extraction.imu_topic,
-        "ingest": ingest,
+        "ingest": extraction.ingest,
         **(report_extra or {}),
     }
-    extracted = Extracted(
-        extraction.log,
-        extraction.processor,
-        extraction.extracted,
-        extraction.scans,
-        gap_factors,
-        extraction.imu_topic,
-    )
     # Written into OUT.partial, published at the end (as decod run): never half-written.
     with staged_run_dir(out_dir) as staging:
         summary = finish_run(
-            extracted,
+            extraction.stage,
             staging,
             cfg,
             opts.mode,
