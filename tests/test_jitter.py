@@ -76,6 +76,14 @@ def test_no_fit_spans_an_odometry_gap() -> None:
     assert np.max(np.linalg.norm(fitted[:, :3, 3] - poses[:, :3, 3], axis=1)) < 2e-3
 
 
+def test_stamps_a_microsecond_apart_do_not_size_the_fit() -> None:
+    stamps = 0.1 * np.arange(2000)
+    stamps[1000] = stamps[999] + 1e-6  # a recorder's duplicate
+    poses = _noisy(_drive(stamps), 0.003, 0.1)
+    fitted, dist = local_fit(stamps, poses, 0.55)
+    assert fitted.shape == poses.shape and np.isfinite(dist).sum() >= 1990
+
+
 def test_smooth_odometry_is_left_alone_and_a_jittery_one_is_smoothed() -> None:
     cfg = load_config(None, "pipe")
     stamps = 0.1 * np.arange(300)

@@ -59,6 +59,8 @@ JITTER_VOXEL_FRACTION = 0.25
 MIN_FIT_SCANS = 5
 #: Scans fitted per block (bounds the memory of the batched fits on hour-long logs).
 BLOCK = 20_000
+#: Neighbours on either side of a scan considered for its fit, at most.
+MAX_REACH = 100
 
 
 def _fit_at_zero(dt: FloatArray, weight: FloatArray, values: FloatArray) -> FloatArray:
@@ -89,8 +91,10 @@ def local_fit(
     if n < MIN_FIT_SCANS:
         return fitted, dist
     steps = np.diff(t)
-    step = float(np.min(steps[steps > 0])) if np.any(steps > 0) else 1.0
-    reach = int(np.ceil(half_window_s / step)) + 1
+    # Neighbours by index, as many as the median period puts within the window (a pair of
+    # stamps a microsecond apart must not size the arrays), and within it by time.
+    step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
+    reach = min(int(np.ceil(half_window_s / step)) + 1, MAX_REACH)
     offsets = np.arange(-reach, reach + 1)
     for lo in range(0, n, BLOCK):
         rows = np.arange(lo, min(lo + BLOCK, n))
