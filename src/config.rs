@@ -1134,4 +1134,22 @@ mod tests {
         let c = serde_json::from_value::<DecodConfig>(stored).map(|c| c.submap.point_stride);
         assert_eq!(c.ok(), Some(1));
     }
+
+    #[test]
+    fn a_config_stored_before_odometry_smoothing_smooths_jittery_odometry() {
+        let mut stored = serde_json::to_value(DecodConfig::pipe()).unwrap_or_default();
+        let removed = stored
+            .get_mut("submap")
+            .and_then(|v| v.as_object_mut())
+            .and_then(|submap| submap.remove("smooth_jittery_odometry"));
+        assert_eq!(removed, Some(serde_json::Value::Bool(true)));
+        let c = serde_json::from_value::<DecodConfig>(stored);
+        assert_eq!(c.ok().map(|c| c.submap.smooth_jittery_odometry), Some(true));
+        let off =
+            DecodConfig::from_toml_str("[submap]\nsmooth_jittery_odometry = false\n", Preset::Pipe);
+        assert_eq!(
+            off.ok().map(|c| c.submap.smooth_jittery_odometry),
+            Some(false)
+        );
+    }
 }
