@@ -32,19 +32,18 @@ pub(crate) fn voxel_index(v: f64, voxel: f64) -> i64 {
 /// with no second pass to re-pack them.
 struct WindowKeys {
     voxel: f64,
-    lo: i32,
+    lo: i64,
     bits: u32,
 }
 
 impl WindowKeys {
     fn new(voxel: f64, max_range: f64) -> Self {
-        // One voxel of margin each side for the rounding of `v / voxel`; the config keeps
-        // `max_range / voxel` below `VOXEL_INDEX_LIMIT`, so `reach` fits an i32.
-        let reach = ((max_range / voxel).ceil() as i64 + 1).min(VOXEL_INDEX_LIMIT + 1);
+        // One voxel of margin each side for the rounding of `v / voxel`.
+        let reach = (max_range / voxel).ceil() as i64 + 1;
         let bits = 64 - ((2 * reach + 1) as u64).leading_zeros();
         Self {
             voxel,
-            lo: -(reach as i32),
+            lo: -reach,
             bits,
         }
     }
@@ -63,7 +62,7 @@ impl WindowKeys {
     fn key(&self, x: f64, y: f64, z: f64) -> u32 {
         const TWO_52: f64 = 4_503_599_627_370_496.0;
         let max = f64::from((1u32 << self.bits) - 1);
-        let lo = f64::from(self.lo);
+        let lo = self.lo as f64;
         let index = |v: f64| {
             let i = ((v / self.voxel).floor() - lo).clamp(0.0, max);
             (i + TWO_52).to_bits() as u32
