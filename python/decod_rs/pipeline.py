@@ -32,7 +32,8 @@ from decod_rs.end_faces import tied_anchors
 from decod_rs.io import find_imu_topic
 from decod_rs.refinement import rebuild_report
 from decod_rs.run_files import check_run_dir, staged_run_dir
-from decod_rs.stages.extract import Extracted, configure, extract_stage
+from decod_rs.stages.axial import stage_one
+from decod_rs.stages.extract import Extracted, Topics, configure
 from decod_rs.stages.match import match_and_select
 from decod_rs.stages.refine import rebuilt
 from decod_rs.stages.solve import solve
@@ -88,22 +89,25 @@ def run_log(
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
     topics = (points_topic, odom_topic, None if odom_tum is None else Path(odom_tum), imu_topic)
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    cfg, auto, imu = configure(log, preset, config_path, topics, sequential, srv)
-    if srv is not None:
-        check_compatible(srv, cfg)
-    timings["configure"] = time.perf_counter() - t0
+
+    def configured(run_topics: Topics) -> tuple[Config, dict[str, Any] | None, Any]:
+        cfg, auto, imu = configure(log, preset, config_path, run_topics, sequential, srv)
+        if srv is not None:
+            check_compatible(srv, cfg)
+        return cfg, auto, imu
+
     # The recording is written by a worker process while the figures are drawn, if any.
     visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun), worker=plots)
     visuals.prepare()
-
-    t0 = time.perf_counter()
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
-    extraction, ingest = extract_stage(
-        log, cfg, topics, progress, keep_map=map or rerun is not None, imu_samples=imu
+    one = stage_one(log, topics, configured, progress, keep_map=map or rerun is not None)
+    cfg, auto, extraction, ingest, timings = (
+        one.cfg,
+        one.auto,
+        one.extraction,
+        one.ingest,
+        one.timings,
     )
-    timings["extract"] = time.perf_counter() - t0
     head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
     with staged_run_dir(out) as staging:

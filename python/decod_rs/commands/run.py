@@ -194,8 +194,26 @@ def print_setup(report: dict[str, Any]) -> None:
             f"(> {limit:.1f} mm, a quarter voxel): the run's odometry is its fit over "
             f"{jitter['fit_window_s']:.1f} s"
         )
+    print_stall((report.get("ingest") or {}).get("odometry_stall"))
     if report.get("no_loop_reason"):
         print(f"no loop        {report['no_loop_reason']}")
+
+
+def print_stall(stall: dict[str, Any] | None) -> None:
+    """The axial check's line (``report.json`` ``ingest.odometry_stall``), when it ran."""
+    if not stall or not stall["checked"]:
+        return
+    seen = (
+        f"the odometry moves {stall['odometry_travel_m']:.2f} m in all; the boundaries passing "
+        f"the sensor {stall['measured_travel_m']:.1f} m ({stall['stretches_measured']} of "
+        f"{stall['stretches']} stretches measured)"
+    )
+    verdict = (
+        "the run's odometry is restitched on them along the axis"
+        if stall["applied"]
+        else "the odometry is kept"
+    )
+    print(f"stall          {seen}: {verdict}")
 
 
 def print_rebuild(report: dict[str, Any]) -> None:

@@ -1,0 +1,145 @@
+"""Stage 1 with the odometry checked along the corridor's axis (:mod:`decod_rs.stall`):
+configure and extract; where the odometry hardly moves, the log extracted again in short
+windows and the boundaries' motion through the sensor's view measured; where that motion is
+the larger, the run's odometry is restitched on it and the run configured and extracted
+again on it."""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from decod_rs.config import Config
+from decod_rs.stages.extract import Extracted, Topics, extract_stage
+from decod_rs.stages.extract import restitched as restitched_on
+from decod_rs.stall import (
+    MIN_MEASURED_SHARE,
+    MIN_PAIR_S,
+    MIN_VOTES,
+    MIN_WINDOW_SCANS,
+    STALL_RATIO,
+    STALL_SPEED_MPS,
+    AxialMotion,
+    block_speeds,
+    odometry_speed,
+    restitched,
+    sensor_fixed,
+)
+from decod_rs.tum import write_tum
+
+FloatArray = NDArray[np.float64]
+#: ``configure`` for a run's topics: its config, ``auto``'s report (None for a preset) and
+#: the IMU samples the probe read.
+Configure = Callable[[Topics], tuple[Config, dict[str, Any] | None, FloatArray | None]]
+
+__all__ = ["StageOne", "stage_one", "stall_check"]
+
+
+@dataclass
+class StageOne:
+    """Stage 1's result: the config, ``auto``'s report, the extraction, ``report.json``'s
+    ``ingest`` section (with ``odometry_stall``) and the stages' times."""
+
+    cfg: Config
+    auto: dict[str, Any] | None
+    extraction: Extracted
+    ingest: dict[str, Any]
+    timings: dict[str, float]
+
+
+def stage_one(
+    log: Path, topics: Topics, configure: Configure, progress: bool, keep_map: bool
+) -> StageOne:
+    """Configure and extract ``log``; where the odometry stalled along the axis
+    (:func:`stall_check`), configure and extract again on the restitched odometry."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    cfg, auto, imu = configure(topics)
+    timings["configure"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    extraction, ingest = extract_stage(log, cfg, topics, progress, keep_map, imu)
+    timings["extract"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    motion = stall_check(extraction, cfg, auto, progress)
+    if motion.poses is not None:
+        with tempfile.TemporaryDirectory(prefix="decod-axial-") as tmp:
+            tum = Path(tmp) / "axial.tum"
+            write_tum(tum, extraction.scans[0], motion.poses)
+            steady = (extraction.processor.points_topic, None, tum, extraction.imu_topic)
+            cfg, auto, imu = configure(steady)
+            extraction, ingest = extract_stage(log, cfg, steady, progress, keep_map, imu)
+    if motion.checked:
+        timings["axial_check"] = time.perf_counter() - t0
+    ingest["odometry_stall"] = motion.report()
+    return StageOne(cfg, auto, extraction, ingest, timings)
+
+
+def _window_scans(auto: dict[str, Any] | None, rate: float) -> int:
+    """Scans per short window: those that fill a descriptor (``auto``'s schedule), at least
+    ``MIN_WINDOW_SCANS``."""
+    schedule = {} if auto is None else auto.get("schedule") or {}
+    return max(MIN_WINDOW_SCANS, math.ceil(float(schedule.get("descriptor_fill_s", 0.0)) * rate))
+
+
+def _oriented_axes(axes: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The views' axes flipped onto one direction (the principal one, signed towards the
+    body's +x), and that direction."""
+    _, vectors = np.linalg.eigh(axes.T @ axes)
+    ref = vectors[:, -1]
+    ref = ref if ref[0] >= 0 else -ref
+    signs = np.where(axes @ ref >= 0.0, 1.0, -1.0)
+    return axes * signs[:, None], ref
+
+
+def stall_check(
+    extraction: Extracted, cfg: Config, auto: dict[str, Any] | None, progress: bool
+) -> AxialMotion:
+    """The axial check (module docs of :mod:`decod_rs.stall`) on a run's first extraction."""
+    stamps, poses = extraction.scans
+    speed = odometry_speed(stamps, poses[:, :3, 3])
+    span = float(stamps[-1] - stamps[0]) if stamps.size > 1 else 0.0
+    if speed >= STALL_SPEED_MPS or stamps.size < 2 * MIN_WINDOW_SCANS:
+        return AxialMotion(speed, speed * span, checked=False)
+    rate = float(1.0 / np.median(np.diff(stamps)))
+    n = _window_scans(auto, rate)
+    values = cfg.to_dict()
+    values["submap"].update(scans_per_submap=n, interval_s=n / rate)
+    ex = restitched_on(extraction, Config(values), extraction.scans[1], progress, "stall")
+    landmarks = ex.landmarks
+    if len(landmarks) < 2:
+        return AxialMotion(speed, speed * span, checked=True, views=len(landmarks))
+    axes, ref = _oriented_axes(np.array([lm.axis for lm in landmarks]))
+    origins = np.array([lm.origin for lm in landmarks])
+    axial = np.einsum("ij,ij->i", origins, axes)
+    view_stamps = np.array([lm.submap_stamp for lm in landmarks])
+    fixed = sensor_fixed(axial, 2.0 * cfg.boundary.dog_sigma_large_m)
+    reach = cfg.submap.max_range_m - cfg.submap.min_range_m
+    blocks = block_speeds(view_stamps[~fixed], axial[~fixed], reach / MIN_PAIR_S)
+    counts = (len(landmarks), int(fixed.sum()), int(blocks.speeds.size))
+    if blocks.speeds.size == 0:
+        return AxialMotion(speed, speed * span, True, *counts)
+    measured_blocks = int(np.sum(blocks.votes >= MIN_VOTES))
+    scan_speed = np.interp(stamps, blocks.centres, blocks.speeds)
+    travel = float(np.sum(0.5 * np.abs(scan_speed[:-1] + scan_speed[1:]) * np.diff(stamps)))
+    applied = (
+        travel >= STALL_RATIO * speed * span
+        and measured_blocks >= MIN_MEASURED_SHARE * blocks.speeds.size
+    )
+    return AxialMotion(
+        speed,
+        speed * span,
+        True,
+        *counts,
+        measured_blocks,
+        travel,
+        applied,
+        restitched(stamps, poses, scan_speed, ref) if applied else None,
+    )

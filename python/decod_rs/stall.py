@@ -1,0 +1,250 @@
+"""A frontend that stalls along the axis (beyond the paper): the axial motion measured from
+the boundaries passing through the sensor's view.
+
+In a smooth pipe a LiDAR odometry has nothing to register along the axis, and it may stop
+there altogether: KISS-ICP on the simulated hume pipes reports 0-4 % of the distance driven.
+The boundaries then say what the odometry cannot. A joint is seen from many consecutive short
+submaps as it passes by, each time at its distance ahead of the sensor, and that distance
+shrinks at the robot's speed along the axis whatever the odometry reports.
+
+decod checks for it where the odometry's mean speed over the log is below
+``STALL_SPEED_MPS`` (the odometry hardly moves: a robot standing still, or a stall). The log
+is then extracted once more in windows of a few scans (the scans that fill a descriptor, at
+least ``MIN_WINDOW_SCANS``), so that little of the unseen motion smears a window, and every
+boundary's distance along its window's axis is taken (``axial``):
+
+- Distances where boundaries pile up whatever the robot does are the sensor's, not the
+  corridor's (the range window's ends: on the simulated 0.6 m pipe with the forward sensor,
+  half of all detections lie within 0.3 m of the far end). Bins holding more than
+  ``PILE_UP`` times the median bin are left out (``sensor_fixed``).
+- Every pair of the remaining views taken ``MIN_PAIR_S`` to ``MAX_PAIR_S`` apart votes for
+  the speed that would carry one onto the other; a joint seen from several windows gives
+  votes that agree, chance pairs spread over all speeds. Within each ``BLOCK_S`` stretch of
+  the log the most voted speed (bins of ``VOTE_BIN_MPS``, refined by the mean of the votes
+  within one bin of it) is the speed along the axis there, where at least ``MIN_VOTES``
+  agree (``block_speeds``); the stretches between are interpolated.
+- The odometry's steps along the axis (the body frame's axis from the views) are replaced
+  by that speed's, its rotations and its steps across the axis kept (``restitched``).
+
+Where the measured travel is ``STALL_RATIO`` times the odometry's or more, the run's
+odometry is the restitched one (``report.json`` ``ingest.odometry_stall`` says what was
+measured): the corridor is configured again on it and the run goes on as on any drifting
+odometry; the loops and the boundary tracks then correct what the speed measurement left.
+Measured on the simulated 0.6 m pipe with the forward sensor (60 m out and back at 0.4 m/s,
+odometry reporting 3 % of it), the block speeds were 0.26-0.46 m/s against the true 0.40
+(``docs/measurements.md``, "Frontends that stall").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "STALL_SPEED_MPS",
+    "AxialMotion",
+    "block_speeds",
+    "odometry_speed",
+    "restitched",
+    "sensor_fixed",
+]
+
+#: The odometry's mean speed (m/s, its path over the log's span) below which the walls are
+#: asked whether it stalled: KISS-ICP's stall on the simulated pipes reports 0.0-0.016 m/s of
+#: 0.4; the slowest matrix robot moves at 0.2 m/s.
+STALL_SPEED_MPS = 0.02
+#: Windows of at least this many scans for the axial measurement.
+MIN_WINDOW_SCANS = 2
+#: A distance bin holding this many times the median bin's views is the sensor's.
+PILE_UP = 3.0
+#: Pairs of views this far apart in time vote (s): at least one window apart, at most as long
+#: as a joint stays in a forward sensor's view in a pipe at walking speed.
+MIN_PAIR_S = 0.25
+MAX_PAIR_S = 2.0
+#: A speed per stretch of this length (s), in bins of this width (m/s), where this many votes
+#: agree.
+BLOCK_S = 2.0
+VOTE_BIN_MPS = 0.04
+VOTE_SIGMA_MPS = 0.02
+JUMP_PENALTY = 0.5
+MIN_VOTES = 3
+#: At least this share of the stretches must hold ``MIN_VOTES`` agreeing votes: the speed is
+#: carried across the others, not guessed for a whole log from a few.
+MIN_MEASURED_SHARE = 0.1
+#: The restitched odometry replaces the run's where it travels this many times as far.
+STALL_RATIO = 2.0
+
+
+def odometry_speed(stamps: FloatArray, positions: FloatArray) -> float:
+    """The odometry's mean speed: its path length over the span of ``stamps`` (m/s)."""
+    if stamps.size < 2 or stamps[-1] <= stamps[0]:
+        return 0.0
+    path = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+    return path / float(stamps[-1] - stamps[0])
+
+
+def sensor_fixed(axial: FloatArray, bin_m: float) -> NDArray[np.bool_]:
+    """Views at distances where detections pile up (module docs): more than ``PILE_UP``
+    times the median occupied bin's count."""
+    if axial.size == 0:
+        return np.zeros(0, dtype=bool)
+    index = np.floor((axial - axial.min()) / bin_m).astype(np.int64)
+    counts = np.bincount(index)
+    occupied = counts[counts > 0]
+    return counts[index] > PILE_UP * float(np.median(occupied))
+
+
+@dataclass(frozen=True)
+class BlockSpeeds:
+    """Speed along the axis (m/s, positive towards the sensor's view) at the centre of each
+    stretch where enough votes agreed, and the votes behind each."""
+
+    centres: FloatArray
+    speeds: FloatArray
+    votes: NDArray[np.int64]
+
+
+def _pair_votes(stamps: FloatArray, axial: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Every pair's (mid time, speed) for pairs ``MIN_PAIR_S``-``MAX_PAIR_S`` apart: views
+    sorted by time, so each view's partners are a contiguous run after it."""
+    order = np.argsort(stamps, kind="stable")
+    t, a = stamps[order], axial[order]
+    lo = np.searchsorted(t, t + MIN_PAIR_S, side="left")
+    hi = np.searchsorted(t, t + MAX_PAIR_S, side="right")
+    counts = np.maximum(hi - lo, 0)
+    first = np.repeat(np.arange(t.size), counts)
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    second = np.repeat(lo, counts) + offsets
+    dt = t[second] - t[first]
+    # The distance ahead shrinks as the sensor moves forward along its axis.
+    return 0.5 * (t[first] + t[second]), (a[first] - a[second]) / dt
+
+
+def _vote_histograms(
+    mid: FloatArray, speed: FloatArray, start: float, blocks: int, grid: FloatArray
+) -> FloatArray:
+    """``(blocks, len(grid))`` votes per ``BLOCK_S`` stretch and speed bin, each vote spread
+    over its neighbouring bins by a Gaussian of ``VOTE_SIGMA_MPS``."""
+    step = float(grid[1] - grid[0])
+    row = np.clip(((mid - start) // BLOCK_S).astype(np.int64), 0, blocks - 1)
+    col = np.clip(np.rint((speed - grid[0]) / step).astype(np.int64), 0, grid.size - 1)
+    hist = np.zeros((blocks, grid.size))
+    np.add.at(hist, (row, col), 1.0)
+    half = int(np.ceil(3.0 * VOTE_SIGMA_MPS / step))
+    offsets = np.arange(-half, half + 1) * step
+    kernel = np.exp(-0.5 * (offsets / VOTE_SIGMA_MPS) ** 2)
+    return np.apply_along_axis(lambda h: np.convolve(h, kernel, mode="same"), 1, hist)
+
+
+def _l1_envelope(score: FloatArray, penalty: float) -> tuple[FloatArray, NDArray[np.int64]]:
+    """``max_j score[j] - penalty * |i - j|`` for every bin ``i``, and the ``j`` reaching it
+    (the distance transform of an L1 cost: one pass each way)."""
+    n = score.size
+    idx = np.arange(n)
+    up = score + penalty * idx  # best j <= i: max(score[j] + p j) - p i
+    up_arg = np.maximum.accumulate(np.where(up == np.maximum.accumulate(up), idx, 0))
+    down = score - penalty * idx  # best j >= i: max(score[j] - p j) + p i
+    rev = down[::-1]
+    rev_best = np.maximum.accumulate(rev)
+    down_arg = (n - 1 - np.maximum.accumulate(np.where(rev == rev_best, idx, 0)))[::-1]
+    from_up = np.maximum.accumulate(up) - penalty * idx
+    from_down = rev_best[::-1] + penalty * idx
+    take_up = from_up >= from_down
+    return np.where(take_up, from_up, from_down), np.where(take_up, up_arg, down_arg)
+
+
+def block_speeds(stamps: FloatArray, axial: FloatArray, max_speed: float) -> BlockSpeeds:
+    """The speed along the axis in each ``BLOCK_S`` stretch (module docs): the path through
+    the stretches' vote histograms that collects the most votes, less ``JUMP_PENALTY`` per
+    ``VOTE_BIN_MPS`` of change between stretches (a Viterbi pass: a stop shows as the many
+    votes of boundaries standing still, a stretch without votes keeps the speed). Speeds
+    beyond ``max_speed`` (a view could not be matched across a window at that speed) are
+    not counted."""
+    empty = BlockSpeeds(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64))
+    if stamps.size < 2:
+        return empty
+    mid, speed = _pair_votes(stamps, axial)
+    keep = np.abs(speed) <= max_speed
+    mid, speed = mid[keep], speed[keep]
+    if mid.size < MIN_VOTES:
+        return empty
+    start = float(stamps.min())
+    blocks = max(1, int(np.ceil((float(stamps.max()) - start) / BLOCK_S)))
+    step = VOTE_BIN_MPS / 4.0
+    grid = np.arange(-max_speed, max_speed + 0.5 * step, step)
+    hist = _vote_histograms(mid, speed, start, blocks, grid)
+    penalty = JUMP_PENALTY * step / VOTE_BIN_MPS
+    score = hist[0].copy()
+    back = np.zeros((blocks, grid.size), dtype=np.int64)
+    for b in range(1, blocks):
+        best, back[b] = _l1_envelope(score, penalty)
+        score = best + hist[b]
+    path = np.zeros(blocks, dtype=np.int64)
+    path[-1] = int(np.argmax(score))
+    for b in range(blocks - 1, 0, -1):
+        path[b - 1] = back[b, path[b]]
+    centres = start + (np.arange(blocks) + 0.5) * BLOCK_S
+    row = np.clip(((mid - start) // BLOCK_S).astype(np.int64), 0, blocks - 1)
+    votes = np.array(
+        [
+            np.sum((row == b) & (np.abs(speed - grid[path[b]]) <= VOTE_BIN_MPS))
+            for b in range(blocks)
+        ],
+        dtype=np.int64,
+    )
+    return BlockSpeeds(np.asarray(centres, dtype=np.float64), grid[path], votes)
+
+
+def restitched(
+    stamps: FloatArray, poses: FloatArray, speed: FloatArray, axis: FloatArray
+) -> FloatArray:
+    """``poses`` (N, 4, 4) at ``stamps`` with each step along the body-frame ``axis`` (3,)
+    replaced by ``speed`` (N,) times the step's duration; rotations and the steps across
+    the axis kept."""
+    out = poses.copy()
+    if stamps.size < 2:
+        return out
+    world_axis = poses[:-1, :3, :3] @ axis  # (N-1, 3)
+    steps = np.diff(poses[:, :3, 3], axis=0)
+    along = np.einsum("ij,ij->i", steps, world_axis)
+    mean_speed = 0.5 * (speed[:-1] + speed[1:])
+    steps += world_axis * (mean_speed * np.diff(stamps) - along)[:, None]
+    out[1:, :3, 3] = poses[0, :3, 3] + np.cumsum(steps, axis=0)
+    return out
+
+
+@dataclass(frozen=True)
+class AxialMotion:
+    """The axial check of a log (module docs): the odometry's travel and speed, and where it
+    was measured, the views, the stretches with a speed, the measured travel, and whether the
+    run's odometry is the restitched one."""
+
+    odometry_speed_mps: float
+    odometry_travel_m: float
+    checked: bool
+    views: int = 0
+    sensor_fixed_views: int = 0
+    blocks: int = 0
+    blocks_measured: int = 0
+    measured_travel_m: float = 0.0
+    applied: bool = False
+    poses: FloatArray | None = None
+
+    def report(self) -> dict[str, Any]:
+        """``report.json`` ``ingest.odometry_stall``."""
+        return {
+            "odometry_speed_mps": round(self.odometry_speed_mps, 4),
+            "odometry_travel_m": round(self.odometry_travel_m, 3),
+            "checked": self.checked,
+            "views": self.views,
+            "sensor_fixed_views": self.sensor_fixed_views,
+            "stretches": self.blocks,
+            "stretches_measured": self.blocks_measured,
+            "measured_travel_m": round(self.measured_travel_m, 3),
+            "applied": self.applied,
+        }
