@@ -8,7 +8,8 @@ submaps as it passes by, each time at its distance ahead of the sensor, and that
 shrinks at the robot's speed along the axis whatever the odometry reports.
 
 decod checks for it where the odometry's mean speed over the log is below
-``STALL_SPEED_MPS`` (the odometry hardly moves: a robot standing still, or a stall). The log
+a descriptor's half length in ``STALL_TIME_S`` (the odometry hardly moves: a robot standing
+still, or a stall). The log
 is then extracted once more in windows of a few scans (the scans that fill a descriptor, at
 least ``MIN_WINDOW_SCANS``), so that little of the unseen motion smears a window, and every
 boundary's distance along its window's axis is taken (``axial``):
@@ -16,7 +17,8 @@ boundary's distance along its window's axis is taken (``axial``):
 - Distances where boundaries pile up whatever the robot does are the sensor's, not the
   corridor's (the range window's ends: on the simulated 0.6 m pipe with the forward sensor,
   half of all detections lie within 0.3 m of the far end). Bins holding more than
-  ``PILE_UP`` times the median bin are left out (``sensor_fixed``).
+  ``PILE_UP`` times the median bin's views, spread over much of the log, are left out
+  (``sensor_fixed``).
 - Every pair of the remaining views taken ``MIN_PAIR_S`` to ``MAX_PAIR_S`` apart votes for
   the speed that would carry one onto the other; a joint seen from several windows gives
   votes that agree, chance pairs spread over all speeds. Within each ``BLOCK_S`` stretch of
@@ -46,7 +48,7 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 
 __all__ = [
-    "STALL_SPEED_MPS",
+    "STALL_TIME_S",
     "AxialMotion",
     "block_speeds",
     "odometry_speed",
@@ -54,28 +56,38 @@ __all__ = [
     "sensor_fixed",
 ]
 
-#: The odometry's mean speed (m/s, its path over the log's span) below which the walls are
-#: asked whether it stalled: KISS-ICP's stall on the simulated pipes reports 0.0-0.016 m/s of
-#: 0.4; the slowest matrix robot moves at 0.2 m/s.
-STALL_SPEED_MPS = 0.02
+#: The walls are asked whether the odometry stalled where its mean speed (its path over the
+#: log's span) is below a descriptor's half length in this many seconds: a boundary then stays
+#: within its own descriptor of where the odometry places it for that long (0.024 m/s in the
+#: 0.6 m pipe, 0.23 m/s in a 6 m tunnel). KISS-ICP's stall on the simulated pipes reports 0-4 %
+#: of the distance (0-0.016 m/s of 0.4 in the pipe); the slowest matrix robot, in a pipe,
+#: moves at 0.2 m/s.
+STALL_TIME_S = 10.0
 #: Windows of at least this many scans for the axial measurement.
 MIN_WINDOW_SCANS = 2
 #: A distance bin holding this many times the median bin's views is the sensor's.
 PILE_UP = 3.0
+PILE_UP_SPREAD = 0.1
 #: Pairs of views this far apart in time vote (s): at least one window apart, at most as long
 #: as a joint stays in a forward sensor's view in a pipe at walking speed.
-MIN_PAIR_S = 0.25
-MAX_PAIR_S = 2.0
+PAIR_WINDOWS = 2
+LONG_PAIR_S = 2.0
+REFINE_GATE = 0.25
 #: A speed per stretch of this length (s), in bins of this width (m/s), where this many votes
 #: agree.
 BLOCK_S = 2.0
 VOTE_BIN_MPS = 0.04
 VOTE_SIGMA_MPS = 0.02
-JUMP_PENALTY = 0.5
+JUMP_PENALTY = 0.1
 MIN_VOTES = 3
-#: At least this share of the stretches must hold ``MIN_VOTES`` agreeing votes: the speed is
-#: carried across the others, not guessed for a whole log from a few.
-MIN_MEASURED_SHARE = 0.1
+#: At least this many stretches must hold ``MIN_VOTES`` agreeing votes: the speed is carried
+#: across the others, not guessed for a whole log from one or two (16 beams in the 0.6 m pipe:
+#: 1 of 154, and a trajectory that never came back; the forward sensor in the 0.4 m pipe, whose
+#: couplers are 6 m apart: 7-13 of 153, and the far end within 2-4 % of the truth).
+MIN_MEASURED_STRETCHES = 5
+#: Measurements: the first on windows stitched on the odometry, the next on windows stitched
+#: on the one before.
+AXIAL_PASSES = 2
 #: The restitched odometry replaces the run's where it travels this many times as far.
 STALL_RATIO = 2.0
 
@@ -88,15 +100,20 @@ def odometry_speed(stamps: FloatArray, positions: FloatArray) -> float:
     return path / float(stamps[-1] - stamps[0])
 
 
-def sensor_fixed(axial: FloatArray, bin_m: float) -> NDArray[np.bool_]:
-    """Views at distances where detections pile up (module docs): more than ``PILE_UP``
-    times the median occupied bin's count."""
+def sensor_fixed(stamps: FloatArray, axial: FloatArray, bin_m: float) -> NDArray[np.bool_]:
+    """Views at distances where detections pile up (module docs): distance bins holding more
+    than ``PILE_UP`` times the median occupied bin's views, in at least ``PILE_UP_SPREAD`` of
+    the log's ``BLOCK_S`` stretches. The spread keeps a stop's views: a joint in view while
+    the robot stands still piles up in its bin too, but only for the stretches of the stop."""
     if axial.size == 0:
         return np.zeros(0, dtype=bool)
     index = np.floor((axial - axial.min()) / bin_m).astype(np.int64)
-    counts = np.bincount(index)
-    occupied = counts[counts > 0]
-    return counts[index] > PILE_UP * float(np.median(occupied))
+    views = np.bincount(index)
+    block = np.floor((stamps - stamps.min()) / BLOCK_S).astype(np.int64)
+    blocks = int(block.max()) + 1
+    stretches = np.bincount(np.unique(index * blocks + block) // blocks, minlength=views.size)
+    piled = views > PILE_UP * float(np.median(views[views > 0]))
+    return (piled & (stretches >= PILE_UP_SPREAD * blocks))[index]
 
 
 @dataclass(frozen=True)
@@ -109,13 +126,15 @@ class BlockSpeeds:
     votes: NDArray[np.int64]
 
 
-def _pair_votes(stamps: FloatArray, axial: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Every pair's (mid time, speed) for pairs ``MIN_PAIR_S``-``MAX_PAIR_S`` apart: views
+def _pair_votes(
+    stamps: FloatArray, axial: FloatArray, window_s: float, horizon_s: float
+) -> tuple[FloatArray, FloatArray]:
+    """Every pair's (mid time, speed) for pairs from one window to ``horizon_s`` apart: views
     sorted by time, so each view's partners are a contiguous run after it."""
     order = np.argsort(stamps, kind="stable")
     t, a = stamps[order], axial[order]
-    lo = np.searchsorted(t, t + MIN_PAIR_S, side="left")
-    hi = np.searchsorted(t, t + MAX_PAIR_S, side="right")
+    lo = np.searchsorted(t, t + 0.5 * window_s, side="left")
+    hi = np.searchsorted(t, t + horizon_s, side="right")
     counts = np.maximum(hi - lo, 0)
     first = np.repeat(np.arange(t.size), counts)
     offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
@@ -158,7 +177,9 @@ def _l1_envelope(score: FloatArray, penalty: float) -> tuple[FloatArray, NDArray
     return np.where(take_up, from_up, from_down), np.where(take_up, up_arg, down_arg)
 
 
-def block_speeds(stamps: FloatArray, axial: FloatArray, max_speed: float) -> BlockSpeeds:
+def block_speeds(
+    stamps: FloatArray, axial: FloatArray, window_s: float, max_speed: float
+) -> BlockSpeeds:
     """The speed along the axis in each ``BLOCK_S`` stretch (module docs): the path through
     the stretches' vote histograms that collects the most votes, less ``JUMP_PENALTY`` per
     ``VOTE_BIN_MPS`` of change between stretches (a Viterbi pass: a stop shows as the many
@@ -168,7 +189,7 @@ def block_speeds(stamps: FloatArray, axial: FloatArray, max_speed: float) -> Blo
     empty = BlockSpeeds(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64))
     if stamps.size < 2:
         return empty
-    mid, speed = _pair_votes(stamps, axial)
+    mid, speed = _pair_votes(stamps, axial, window_s, (PAIR_WINDOWS + 0.5) * window_s)
     keep = np.abs(speed) <= max_speed
     mid, speed = mid[keep], speed[keep]
     if mid.size < MIN_VOTES:
@@ -197,7 +218,31 @@ def block_speeds(stamps: FloatArray, axial: FloatArray, max_speed: float) -> Blo
         ],
         dtype=np.int64,
     )
-    return BlockSpeeds(np.asarray(centres, dtype=np.float64), grid[path], votes)
+    coarse = BlockSpeeds(np.asarray(centres, dtype=np.float64), grid[path], votes)
+    return _refined(stamps, axial, window_s, coarse)
+
+
+def _refined(
+    stamps: FloatArray, axial: FloatArray, window_s: float, coarse: BlockSpeeds
+) -> BlockSpeeds:
+    """Each stretch's speed refined by the pairs up to ``LONG_PAIR_S`` apart that agree with
+    its coarse speed within ``REFINE_GATE`` of it (at least ``VOTE_BIN_MPS``): their median,
+    where ``MIN_VOTES`` or more agree. Pairs far apart resolve the speed finely, but in a
+    corridor of evenly spaced rings they also pair each ring with its neighbour (at 1.5 m/s
+    and 1.5 m between rings, every pair 1 s apart votes for standing still), so they only
+    refine what the near pairs chose."""
+    mid, speed = _pair_votes(stamps, axial, window_s, max(LONG_PAIR_S, 1.5 * window_s))
+    start = coarse.centres[0] - 0.5 * BLOCK_S
+    row = np.clip(((mid - start) // BLOCK_S).astype(np.int64), 0, coarse.centres.size - 1)
+    expected = coarse.speeds[row]
+    gate = np.maximum(REFINE_GATE * np.abs(expected), VOTE_BIN_MPS)
+    agree = np.abs(speed - expected) <= gate
+    speeds, votes = coarse.speeds.copy(), coarse.votes.copy()
+    for b in np.unique(row[agree]):
+        near = speed[agree & (row == b)]
+        if near.size >= MIN_VOTES:
+            speeds[b], votes[b] = float(np.median(near)), int(near.size)
+    return BlockSpeeds(coarse.centres, speeds, votes)
 
 
 def restitched(

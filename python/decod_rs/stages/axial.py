@@ -21,13 +21,14 @@ from decod_rs.config import Config
 from decod_rs.stages.extract import Extracted, Topics, extract_stage
 from decod_rs.stages.extract import restitched as restitched_on
 from decod_rs.stall import (
-    MIN_MEASURED_SHARE,
-    MIN_PAIR_S,
+    AXIAL_PASSES,
+    MIN_MEASURED_STRETCHES,
     MIN_VOTES,
     MIN_WINDOW_SCANS,
     STALL_RATIO,
-    STALL_SPEED_MPS,
+    STALL_TIME_S,
     AxialMotion,
+    BlockSpeeds,
     block_speeds,
     odometry_speed,
     restitched,
@@ -99,47 +100,74 @@ def _oriented_axes(axes: FloatArray) -> tuple[FloatArray, FloatArray]:
     return axes * signs[:, None], ref
 
 
+@dataclass(frozen=True)
+class _Measured:
+    """One measurement of the speed along the axis: the views, those at sensor-fixed
+    distances, the stretches' speeds and the body-frame axis they are along."""
+
+    views: int
+    fixed: int
+    blocks: BlockSpeeds
+    axis: FloatArray
+
+
+def _measure(
+    extraction: Extracted, short: Config, stitch: FloatArray, window_s: float, progress: bool
+) -> _Measured | None:
+    """The log in short windows stitched on ``stitch`` (N, 4, 4), and the speed its
+    boundaries' distances give (module docs of :mod:`decod_rs.stall`); None with fewer than
+    two views."""
+    landmarks = restitched_on(extraction, short, stitch, progress, "stall").landmarks
+    if len(landmarks) < 2:
+        return None
+    axes, ref = _oriented_axes(np.array([lm.axis for lm in landmarks]))
+    axial = np.einsum("ij,ij->i", np.array([lm.origin for lm in landmarks]), axes)
+    stamps = np.array([lm.submap_stamp for lm in landmarks])
+    fixed = sensor_fixed(stamps, axial, 2.0 * short.boundary.dog_sigma_large_m)
+    reach = short.submap.max_range_m - short.submap.min_range_m
+    blocks = block_speeds(stamps[~fixed], axial[~fixed], window_s, reach / window_s)
+    return _Measured(len(landmarks), int(fixed.sum()), blocks, ref)
+
+
 def stall_check(
     extraction: Extracted, cfg: Config, auto: dict[str, Any] | None, progress: bool
 ) -> AxialMotion:
-    """The axial check (module docs of :mod:`decod_rs.stall`) on a run's first extraction."""
+    """The axial check (module docs of :mod:`decod_rs.stall`) on a run's first extraction:
+    measured on windows stitched on the odometry, then, where it stalled, once more on
+    windows stitched on the first measurement (which smears a window's boundaries less)."""
     stamps, poses = extraction.scans
     speed = odometry_speed(stamps, poses[:, :3, 3])
     span = float(stamps[-1] - stamps[0]) if stamps.size > 1 else 0.0
-    if speed >= STALL_SPEED_MPS or stamps.size < 2 * MIN_WINDOW_SCANS:
+    if speed >= cfg.descriptor.half_length_m / STALL_TIME_S or stamps.size < 2 * MIN_WINDOW_SCANS:
         return AxialMotion(speed, speed * span, checked=False)
     rate = float(1.0 / np.median(np.diff(stamps)))
     n = _window_scans(auto, rate)
     values = cfg.to_dict()
     values["submap"].update(scans_per_submap=n, interval_s=n / rate)
-    ex = restitched_on(extraction, Config(values), extraction.scans[1], progress, "stall")
-    landmarks = ex.landmarks
-    if len(landmarks) < 2:
-        return AxialMotion(speed, speed * span, checked=True, views=len(landmarks))
-    axes, ref = _oriented_axes(np.array([lm.axis for lm in landmarks]))
-    origins = np.array([lm.origin for lm in landmarks])
-    axial = np.einsum("ij,ij->i", origins, axes)
-    view_stamps = np.array([lm.submap_stamp for lm in landmarks])
-    fixed = sensor_fixed(axial, 2.0 * cfg.boundary.dog_sigma_large_m)
-    reach = cfg.submap.max_range_m - cfg.submap.min_range_m
-    blocks = block_speeds(view_stamps[~fixed], axial[~fixed], reach / MIN_PAIR_S)
-    counts = (len(landmarks), int(fixed.sum()), int(blocks.speeds.size))
-    if blocks.speeds.size == 0:
-        return AxialMotion(speed, speed * span, True, *counts)
-    measured_blocks = int(np.sum(blocks.votes >= MIN_VOTES))
-    scan_speed = np.interp(stamps, blocks.centres, blocks.speeds)
-    travel = float(np.sum(0.5 * np.abs(scan_speed[:-1] + scan_speed[1:]) * np.diff(stamps)))
-    applied = (
-        travel >= STALL_RATIO * speed * span
-        and measured_blocks >= MIN_MEASURED_SHARE * blocks.speeds.size
-    )
-    return AxialMotion(
-        speed,
-        speed * span,
-        True,
-        *counts,
-        measured_blocks,
-        travel,
-        applied,
-        restitched(stamps, poses, scan_speed, ref) if applied else None,
-    )
+    short = Config(values)
+    stitch, motion = poses, AxialMotion(speed, speed * span, checked=True)
+    for _ in range(AXIAL_PASSES):
+        measured = _measure(extraction, short, stitch, n / rate, progress)
+        if measured is None or measured.blocks.speeds.size == 0:
+            break
+        blocks = measured.blocks
+        scan_speed = np.interp(stamps, blocks.centres, blocks.speeds)
+        travel = float(np.sum(0.5 * np.abs(scan_speed[:-1] + scan_speed[1:]) * np.diff(stamps)))
+        measured_blocks = int(np.sum(blocks.votes >= MIN_VOTES))
+        applied = travel >= STALL_RATIO * speed * span and measured_blocks >= MIN_MEASURED_STRETCHES
+        stitch = restitched(stamps, poses, scan_speed, measured.axis)
+        motion = AxialMotion(
+            speed,
+            speed * span,
+            True,
+            measured.views,
+            measured.fixed,
+            int(blocks.speeds.size),
+            measured_blocks,
+            travel,
+            applied,
+            stitch if applied else None,
+        )
+        if not applied:
+            break
+    return motion
