@@ -22,7 +22,7 @@ from decod_rs.stages.extract import Extracted, Topics, extract_stage
 from decod_rs.stages.extract import restitched as restitched_on
 from decod_rs.stall import (
     AXIAL_PASSES,
-    MIN_MEASURED_STRETCHES,
+    CHANCE_SIGMAS,
     MIN_VOTES,
     MIN_WINDOW_SCANS,
     STALL_RATIO,
@@ -30,6 +30,7 @@ from decod_rs.stall import (
     AxialMotion,
     BlockSpeeds,
     block_speeds,
+    chance_votes,
     odometry_speed,
     restitched,
     sensor_fixed,
@@ -103,11 +104,13 @@ def _oriented_axes(axes: FloatArray) -> tuple[FloatArray, FloatArray]:
 @dataclass(frozen=True)
 class _Measured:
     """One measurement of the speed along the axis: the views, those at sensor-fixed
-    distances, the stretches' speeds and the body-frame axis they are along."""
+    distances, the stretches' speeds, the votes of the same views shuffled and the
+    body-frame axis the speeds are along."""
 
     views: int
     fixed: int
     blocks: BlockSpeeds
+    chance: tuple[float, float]
     axis: FloatArray
 
 
@@ -125,8 +128,10 @@ def _measure(
     stamps = np.array([lm.submap_stamp for lm in landmarks])
     fixed = sensor_fixed(stamps, axial, 2.0 * short.boundary.dog_sigma_large_m)
     reach = short.submap.max_range_m - short.submap.min_range_m
-    blocks = block_speeds(stamps[~fixed], axial[~fixed], window_s, reach / window_s)
-    return _Measured(len(landmarks), int(fixed.sum()), blocks, ref)
+    kept = (stamps[~fixed], axial[~fixed], window_s, reach / window_s)
+    return _Measured(
+        len(landmarks), int(fixed.sum()), block_speeds(*kept), chance_votes(*kept), ref
+    )
 
 
 def stall_check(
@@ -154,7 +159,11 @@ def stall_check(
         scan_speed = np.interp(stamps, blocks.centres, blocks.speeds)
         travel = float(np.sum(0.5 * np.abs(scan_speed[:-1] + scan_speed[1:]) * np.diff(stamps)))
         measured_blocks = int(np.sum(blocks.votes >= MIN_VOTES))
-        applied = travel >= STALL_RATIO * speed * span and measured_blocks >= MIN_MEASURED_STRETCHES
+        votes = int(blocks.votes.sum())
+        applied = (
+            travel >= STALL_RATIO * speed * span
+            and votes >= measured.chance[0] + CHANCE_SIGMAS * measured.chance[1]
+        )
         stitch = restitched(stamps, poses, scan_speed, measured.axis)
         motion = AxialMotion(
             speed,
@@ -164,6 +173,8 @@ def stall_check(
             measured.fixed,
             int(blocks.speeds.size),
             measured_blocks,
+            votes,
+            measured.chance,
             travel,
             applied,
             stitch if applied else None,
