@@ -20,7 +20,6 @@ from typing import Any
 
 import pytest
 
-from decod_rs.batch import replay
 from decod_rs.batch.batch import run_batch
 from decod_rs.batch.engine import dask_available, open_engine
 from decod_rs.batch.grid import params_toml, settings_from_grid
@@ -30,6 +29,7 @@ from decod_rs.cli import main
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
+from decod_rs.stages import axial
 
 LENGTH_M = 12.0
 SEEDS = (3, 4)
@@ -149,13 +149,13 @@ def test_batch_falls_back_to_a_process_pool(corrupt: Path, tmp_path: Path) -> No
 
 def _count_extractions(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     calls: list[Path] = []
-    extract = replay.extract_stage
+    extract = axial.extract_stage
 
     def counting(log: Path, *args: Any, **kwargs: Any) -> Any:
         calls.append(log)
         return extract(log, *args, **kwargs)
 
-    monkeypatch.setattr(replay, "extract_stage", counting)
+    monkeypatch.setattr(axial, "extract_stage", counting)
     return calls
 
 

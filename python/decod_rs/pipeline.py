@@ -5,7 +5,9 @@ called here in Algorithm 1's order:
 
 1. **extract** (:mod:`~decod_rs.stages.extract`) - the Rust ``LogProcessor`` streams scans
    from the log, builds submaps and extracts landmarks a few submaps at a time (memory
-   bounded by the submaps in flight);
+   bounded by the submaps in flight); where the odometry hardly moves, the boundaries
+   passing the sensor measure the motion along the axis, and where the odometry stalled the
+   run is configured and extracted again on it (:mod:`~decod_rs.stages.axial`);
 2. **match** and **select** (:mod:`~decod_rs.stages.match`) - outbound landmarks form the
    database, return landmarks query it (batch, the paper's protocol), or every landmark
    queries all older ones (online); the jointly consistent loops are kept;

@@ -9,7 +9,6 @@ setting writes the files a ``decod run --config`` at that setting writes.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,8 @@ from decod_rs.config import Config
 from decod_rs.io import find_imu_topic
 from decod_rs.pipeline import MODES, Extracted, RunSummary, Visuals, finish_run
 from decod_rs.run_files import staged_run_dir
-from decod_rs.stages.extract import SubmapLandmarks, configure, extract_stage
+from decod_rs.stages.axial import stage_one
+from decod_rs.stages.extract import SubmapLandmarks, Topics, configure
 
 FloatArray = NDArray[np.float64]
 
@@ -78,14 +78,20 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
     if imu_topic is None and options.use_imu:
         imu_topic = find_imu_topic(log)
     topics = (options.points_topic, options.odom_topic, options.odom_tum, imu_topic)
-    t0 = time.perf_counter()
-    base, auto, imu = configure(log, options.preset, options.config, topics, options.sequential)
-    cfg = apply_params(base, params) if params else base
-    configure_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    stage, ingest = extract_stage(log, cfg, topics, False, keep_map=options.map, imu_samples=imu)
-    timings = {"configure": configure_s, "extract": time.perf_counter() - t0}
-    return Extraction(log, options, stage, ingest, base, cfg, auto, timings)
+    bases: list[Config] = []
+
+    def configured(run_topics: Topics) -> tuple[Config, dict[str, Any] | None, Any]:
+        base, auto, imu = configure(
+            log, options.preset, options.config, run_topics, options.sequential
+        )
+        bases.append(base)
+        return (apply_params(base, params) if params else base), auto, imu
+
+    # Stage 1 as run_log's: the odometry checked along the axis too (decod_rs.stages.axial).
+    one = stage_one(log, topics, configured, False, keep_map=options.map)
+    return Extraction(
+        log, options, one.extraction, one.ingest, bases[-1], one.cfg, one.auto, one.timings
+    )
 
 
 def run_from_extraction(
