@@ -130,18 +130,19 @@ def test_the_odometry_restitched_along_its_own_axis() -> None:
 @pytest.fixture(scope="module")
 def stalled(module_dir: Path) -> Path:
     # Seed, length and stop none of the stall's rules were chosen on: a 0.6 m pipe seen by the
-    # forward sensor, 18 m out and back at 0.4 m/s with an 8 s stop on the way back, odometry
-    # reporting 3 % of the motion (KISS-ICP's stall on these pipes: 0-4 %).
+    # forward sensor, 20 m out and back at 0.4 m/s with a 6 s stop on the way out, odometry
+    # reporting 3 % of the motion (KISS-ICP's stall on these pipes: 0-4 %). Run once before
+    # this test was written: 25 loops, all right; far end at 92 % of the truth.
     out = module_dir / "sim"
     simulate(
         "hume",
         out,
-        seed=13,
+        seed=17,
         sensor="avia",
         return_mode="reverse",
-        length_m=18.0,
+        length_m=20.0,
         drift="legs:-0.97,-0.97",
-        stops=((1.0, 0.4, 8.0),),
+        stops=((0.0, 0.6, 6.0),),
         progress=False,
     )
     return out
