@@ -119,6 +119,7 @@ from decod_rs.ingest import LogWarning
 from decod_rs.io import ScanReader, read_log
 from decod_rs.jitter import assess
 from decod_rs.path_curve import path_curvature
+from decod_rs.stall import odometry_speed
 from decod_rs.tum import interpolate_poses, poses_from_tq
 
 FloatArray = NDArray[np.float64]
@@ -188,16 +189,7 @@ def _probe_config() -> str:
 
 def _speed(odometry: FloatArray) -> float:
     """The typical moving speed: median over 1 s windows where the robot moves."""
-    t, p = odometry[:, 0], odometry[:, 1:4]
-    if t.size < 2 or t[-1] - t[0] <= 0:
-        return 0.0
-    grid = np.arange(t[0], t[-1], 1.0)
-    if grid.size < 2:
-        return float(np.linalg.norm(p[-1] - p[0]) / (t[-1] - t[0]))
-    pos = np.stack([np.interp(grid, t, p[:, i]) for i in range(3)], axis=1)
-    v = np.linalg.norm(np.diff(pos, axis=0), axis=1)
-    moving = v[v > 0.02]
-    return float(np.median(moving)) if moving.size else 0.0
+    return odometry_speed(odometry[:, 0], odometry[:, 1:4])
 
 
 def _section_axes(axis: FloatArray, gravity: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -32,6 +32,7 @@ from decod_rs.stall import (
     block_speeds,
     chance_votes,
     odometry_speed,
+    path_length,
     restitched,
     sensor_fixed,
 )
@@ -141,16 +142,15 @@ def stall_check(
     measured on windows stitched on the odometry, then, where it stalled, once more on
     windows stitched on the first measurement (which smears a window's boundaries less)."""
     stamps, poses = extraction.scans
-    speed = odometry_speed(stamps, poses[:, :3, 3])
-    span = float(stamps[-1] - stamps[0]) if stamps.size > 1 else 0.0
+    speed, path = odometry_speed(stamps, poses[:, :3, 3]), path_length(poses[:, :3, 3])
     if speed >= cfg.descriptor.half_length_m / STALL_TIME_S or stamps.size < 2 * MIN_WINDOW_SCANS:
-        return AxialMotion(speed, speed * span, checked=False)
+        return AxialMotion(speed, path, checked=False)
     rate = float(1.0 / np.median(np.diff(stamps)))
     n = _window_scans(auto, rate)
     values = cfg.to_dict()
     values["submap"].update(scans_per_submap=n, interval_s=n / rate)
     short = Config(values)
-    stitch, motion = poses, AxialMotion(speed, speed * span, checked=True)
+    stitch, motion = poses, AxialMotion(speed, path, checked=True)
     for _ in range(AXIAL_PASSES):
         measured = _measure(extraction, short, stitch, n / rate, progress)
         if measured is None or measured.blocks.speeds.size == 0:
@@ -161,13 +161,13 @@ def stall_check(
         measured_blocks = int(np.sum(blocks.votes >= MIN_VOTES))
         votes = int(blocks.votes.sum())
         applied = (
-            travel >= STALL_RATIO * speed * span
+            travel >= STALL_RATIO * path
             and votes >= measured.chance[0] + CHANCE_SIGMAS * measured.chance[1]
         )
         stitch = restitched(stamps, poses, scan_speed, measured.axis)
         motion = AxialMotion(
             speed,
-            speed * span,
+            path,
             True,
             measured.views,
             measured.fixed,
