@@ -188,3 +188,17 @@ def test_an_odometry_that_moves_is_not_checked(stalled: Path, tmp_path: Path) ->
     assert not stall["checked"] and not stall["applied"]
     assert "axial_check" not in report["timings_s"]
     assert stall["odometry_speed_mps"] == pytest.approx(0.4, rel=0.3)
+
+
+def test_the_viterbi_step_takes_the_best_predecessor_under_its_jump_cost() -> None:
+    from decod_rs.stall import _l1_envelope
+
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        n = int(rng.integers(1, 40))
+        score, penalty = rng.normal(size=n) * rng.choice([0.1, 1.0, 5.0]), rng.uniform(0.0, 2.0)
+        best, arg = _l1_envelope(score, penalty)
+        i, j = np.arange(n)[:, None], np.arange(n)[None, :]
+        brute = score[None, :] - penalty * np.abs(i - j)
+        assert np.allclose(best, brute.max(axis=1))
+        assert np.allclose(brute[np.arange(n), arg], best)
