@@ -25,6 +25,9 @@ from decod_rs.stall import (
     CHANCE_SIGMAS,
     MIN_VOTES,
     MIN_WINDOW_SCANS,
+    SAMPLE_EVERY_S,
+    SAMPLE_S,
+    SAMPLE_SIGMAS,
     STALL_RATIO,
     STALL_TIME_S,
     AxialMotion,
@@ -116,12 +119,17 @@ class _Measured:
 
 
 def _measure(
-    extraction: Extracted, short: Config, stitch: FloatArray, window_s: float, progress: bool
+    extraction: Extracted,
+    short: Config,
+    stitch: FloatArray,
+    window_s: float,
+    progress: bool,
+    keep: NDArray[np.bool_] | None = None,
 ) -> _Measured | None:
-    """The log in short windows stitched on ``stitch`` (N, 4, 4), and the speed its
-    boundaries' distances give (module docs of :mod:`decod_rs.stall`); None with fewer than
-    two views."""
-    landmarks = restitched_on(extraction, short, stitch, progress, "stall").landmarks
+    """The log (its scans ``keep``, default all) in short windows stitched on ``stitch``
+    (N, 4, 4), and the speed its boundaries' distances give (module docs of
+    :mod:`decod_rs.stall`); None with fewer than two views."""
+    landmarks = restitched_on(extraction, short, stitch, progress, "stall", keep).landmarks
     if len(landmarks) < 2:
         return None
     axes, ref = _oriented_axes(np.array([lm.axis for lm in landmarks]))
@@ -139,8 +147,9 @@ def stall_check(
     extraction: Extracted, cfg: Config, auto: dict[str, Any] | None, progress: bool
 ) -> AxialMotion:
     """The axial check (module docs of :mod:`decod_rs.stall`) on a run's first extraction:
-    measured on windows stitched on the odometry, then, where it stalled, once more on
-    windows stitched on the first measurement (which smears a window's boundaries less)."""
+    a sample of the log measured on windows stitched on the odometry; where it stalled, the
+    whole log, then once more on windows stitched on that measurement (which smears a
+    window's boundaries less)."""
     stamps, poses = extraction.scans
     speed, path = odometry_speed(stamps, poses[:, :3, 3]), path_length(poses[:, :3, 3])
     if speed >= cfg.descriptor.half_length_m / STALL_TIME_S or stamps.size < 2 * MIN_WINDOW_SCANS:
@@ -150,35 +159,74 @@ def stall_check(
     values = cfg.to_dict()
     values["submap"].update(scans_per_submap=n, interval_s=n / rate)
     short = Config(values)
+    sample = _sample(stamps)
+    if sample is not None:
+        motion = _verdict(extraction, short, poses, n / rate, progress, speed, path, sample)
+        if not motion.applied:
+            return motion
+    # Stalled (in the sample): the whole log measured, then once more on windows stitched on
+    # that measurement.
     stitch, motion = poses, AxialMotion(speed, path, checked=True)
     for _ in range(AXIAL_PASSES):
-        measured = _measure(extraction, short, stitch, n / rate, progress)
-        if measured is None or measured.blocks.speeds.size == 0:
+        motion = _verdict(extraction, short, stitch, n / rate, progress, speed, path, None)
+        if motion.poses is None:
             break
-        blocks = measured.blocks
-        scan_speed = np.interp(stamps, blocks.centres, blocks.speeds)
-        travel = float(np.sum(0.5 * np.abs(scan_speed[:-1] + scan_speed[1:]) * np.diff(stamps)))
-        measured_blocks = int(np.sum(blocks.votes >= MIN_VOTES))
-        votes = int(blocks.votes.sum())
-        applied = (
-            travel >= STALL_RATIO * path
-            and votes >= measured.chance[0] + CHANCE_SIGMAS * measured.chance[1]
-        )
-        stitch = restitched(stamps, poses, scan_speed, measured.axis)
-        motion = AxialMotion(
-            speed,
-            path,
-            True,
-            measured.views,
-            measured.fixed,
-            int(blocks.speeds.size),
-            measured_blocks,
-            votes,
-            measured.chance,
-            travel,
-            applied,
-            stitch if applied else None,
-        )
-        if not applied:
-            break
+        stitch = motion.poses
     return motion
+
+
+def _sample(stamps: FloatArray) -> NDArray[np.bool_] | None:
+    """The scans of the check's sample: ``SAMPLE_S`` of every ``SAMPLE_EVERY_S`` of the log;
+    None (every scan) for a log shorter than two of those."""
+    offset = stamps - stamps[0]
+    if offset[-1] < 2.0 * SAMPLE_EVERY_S:
+        return None
+    return np.asarray(np.mod(offset, SAMPLE_EVERY_S) < SAMPLE_S)
+
+
+def _verdict(
+    extraction: Extracted,
+    short: Config,
+    stitch: FloatArray,
+    window_s: float,
+    progress: bool,
+    speed: float,
+    path: float,
+    keep: NDArray[np.bool_] | None,
+) -> AxialMotion:
+    """One measurement (of the scans ``keep``, default all) and whether it restitches the
+    odometry: its travel at least ``STALL_RATIO`` times the odometry's over the same scans,
+    its votes ``CHANCE_SIGMAS`` (a sample's: ``SAMPLE_SIGMAS``) above the shuffled views'.
+    ``poses``: the odometry restitched on it (over the whole log), where it does."""
+    stamps, poses = extraction.scans
+    measured = _measure(extraction, short, stitch, window_s, progress, keep)
+    if measured is None or measured.blocks.speeds.size == 0:
+        return AxialMotion(speed, path, True, 0 if measured is None else measured.views)
+    blocks = measured.blocks
+    scan_speed = np.interp(stamps, blocks.centres, blocks.speeds)
+    steps = 0.5 * np.abs(scan_speed[:-1] + scan_speed[1:]) * np.diff(stamps)
+    odometry_steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    if keep is not None:
+        both = keep[:-1] & keep[1:]
+        steps, odometry_steps = steps[both], odometry_steps[both]
+    travel, votes = float(steps.sum()), int(blocks.votes.sum())
+    sigmas = CHANCE_SIGMAS if keep is None else SAMPLE_SIGMAS
+    applied = (
+        travel >= STALL_RATIO * float(odometry_steps.sum())
+        and votes >= measured.chance[0] + sigmas * measured.chance[1]
+    )
+    return AxialMotion(
+        speed,
+        path,
+        True,
+        measured.views,
+        measured.fixed,
+        int(blocks.speeds.size),
+        int(np.sum(blocks.votes >= MIN_VOTES)),
+        votes,
+        measured.chance,
+        travel,
+        applied,
+        restitched(stamps, poses, scan_speed, measured.axis) if applied else None,
+        sampled=keep is not None,
+    )

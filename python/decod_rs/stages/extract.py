@@ -60,17 +60,23 @@ class Extracted:
 
 
 def restitched(
-    extraction: Extracted, cfg: Config, poses: FloatArray, progress: bool, label: str
+    extraction: Extracted,
+    cfg: Config,
+    poses: FloatArray,
+    progress: bool,
+    label: str,
+    keep: NDArray[np.bool_] | None = None,
 ) -> SubmapLandmarks:
     """Stage 1 again, the submaps stitched on ``poses`` (N, 4, 4) at the scan stamps, the
     anchors placed on the odometry like the first ones (the graph's nodes; a submap's frame is
     its anchor scan's body frame whichever poses stitched it): for the corrected trajectory
     (:mod:`decod_rs.refinement`) and for the odometry's smooth fit (:mod:`decod_rs.jitter`),
-    then also the run's odometry."""
+    then also the run's odometry. ``keep`` (N,): only those scans (the others are left out as
+    an odometry gap's are), for a sample of the log (:mod:`decod_rs.stages.axial`)."""
     stamps, odometry = extraction.scans
     with tempfile.TemporaryDirectory(prefix="decod-restitch-") as tmp:
         tum = Path(tmp) / "stitching.tum"
-        write_tum(tum, stamps, poses)
+        write_tum(tum, *((stamps, poses) if keep is None else (stamps[keep], poses[keep])))
         points = extraction.processor.points_topic
         # The IMU the first extraction read: with the odometry from the file above, the log is
         # then read once, for its scans (not once more for the IMU).
