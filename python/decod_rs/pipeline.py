@@ -103,24 +103,17 @@ def run_log(
     visuals.prepare()
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
     one = stage_one(log, topics, configured, progress, keep_map=map or rerun is not None)
-    cfg, auto, extraction, ingest, timings = (
-        one.cfg,
-        one.auto,
-        one.extraction,
-        one.ingest,
-        one.timings,
-    )
-    head = {"preset": preset, "auto": auto, "imu_topic": imu_topic, "ingest": ingest}
+    head = {"preset": preset, "auto": one.auto, "imu_topic": imu_topic, "ingest": one.ingest}
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
     with staged_run_dir(out) as staging:
         summary = finish_run(
-            extraction,
+            one.extraction,
             staging,
-            cfg,
+            one.cfg,
             mode,
             loops,
             plots,
-            timings,
+            one.timings,
             head,
             visuals,
             progress,

@@ -7,11 +7,12 @@ The boundaries then say what the odometry cannot. A joint is seen from many cons
 submaps as it passes by, each time at its distance ahead of the sensor, and that distance
 shrinks at the robot's speed along the axis whatever the odometry reports.
 
-decod checks for it where the odometry's mean speed over the log is below a descriptor's
-half length in ``STALL_TIME_S`` (the odometry hardly moves: a robot standing still, or a
-stall). The log is then extracted again in windows of a few scans (those that fill a
-descriptor, at least ``MIN_WINDOW_SCANS``), so that little of the unseen motion smears a
-window, and every boundary's distance along its window's axis is taken:
+decod checks for it where the odometry's typical moving speed is below a descriptor's half
+length in ``STALL_TIME_S`` (the odometry hardly moves: a robot standing still, or a stall).
+A sample of the log (``SAMPLE_S`` of every ``SAMPLE_EVERY_S``), and where that sample says
+the odometry stalled the whole log, is then extracted again in windows of a few scans (those
+that fill a descriptor, at least ``MIN_WINDOW_SCANS``), so that little of the unseen motion
+smears a window, and every boundary's distance along its window's axis is taken:
 
 - Distances where boundaries pile up whatever the robot does are the sensor's, not the
   corridor's (the range window's ends: on the simulated 0.6 m pipe with the forward sensor,
@@ -39,15 +40,14 @@ window, and every boundary's distance along its window's axis is taken:
 Where the measured travel is ``STALL_RATIO`` times the odometry's or more, and the speed's
 path collects more votes than the same views shuffled among the windows by ``CHANCE_SIGMAS``
 of the shuffles' spread (a null model: the same views without motion to carry them;
-``chance_votes``), the run's odometry is the restitched one (``report.json``
-``ingest.odometry_stall`` says what was measured): the corridor is configured again on it
-and the run goes on as on any drifting odometry, the loops and boundary tracks correcting
-what the speed left. On six simulated logs whose
-odometry reported 2-3 % of the distance (pipes and tunnels seen by the forward sensor), the
-corrected far end came within 86-102 % of the truth (3 % before), with no wrong loop; with 16
-beams in the 0.6 m pipe the speed's path collected what shuffled views collect (170 votes
-against 169 +- 9) and the odometry is kept
-(``docs/measurements.md``, "Frontends that stall").
+``chance_votes``; a sample passes the whole log on at ``SAMPLE_SIGMAS``), the run's odometry
+is the restitched one (``report.json`` ``ingest.odometry_stall`` says what was measured):
+the corridor is configured again on it and the run goes on as on any drifting odometry, the
+loops and boundary tracks correcting what the speed left. On seven simulated logs whose
+odometry reported 3 % of the distance (pipes and tunnels seen by the forward sensor), the
+corrected far end came within 86-109 % of the truth (3 % before), with no wrong loop; with
+16 beams in the 0.6 m pipe the speed's path collects what shuffled views collect and the
+odometry is kept (``docs/measurements.md``, "Frontends that stall").
 """
 
 from __future__ import annotations
