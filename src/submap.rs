@@ -331,11 +331,16 @@ fn validate_scans(scans: &[Scan]) -> Result<()> {
 /// case, and the submap extends both ways from the anchor. Memory is bounded by one window.
 /// When a window takes longer than `interval_s` to fill, the next one starts at the first
 /// scan after it (windows never overlap, so no scan is shared by two submaps).
+/// With `max_travel_m` above 0, a window also closes, and the next one also starts, once
+/// the odometry is that far from the window's first scan: the schedule holds its travel
+/// per window where the robot drives faster than the speed it was chosen for.
 #[derive(Debug)]
 pub struct SubmapBuilder {
     cfg: SubmapConfig,
     window: Vec<Scan>,
     next_start_s: Option<f64>,
+    /// Odometry position of the last window's first scan.
+    start_position: Option<Vector3<f64>>,
     last_stamp: f64,
 }
 
@@ -346,6 +351,7 @@ impl SubmapBuilder {
             cfg: cfg.clone(),
             window: Vec::with_capacity(cfg.scans_per_submap),
             next_start_s: None,
+            start_position: None,
             last_stamp: f64::NEG_INFINITY,
         }
     }
@@ -383,15 +389,28 @@ impl SubmapBuilder {
         self.last_stamp = scan.stamp;
         if self.window.is_empty() {
             match self.next_start_s {
-                Some(start) if scan.stamp < start => return Ok(None),
-                _ => self.next_start_s = Some(scan.stamp + self.cfg.interval_s),
+                Some(start) if scan.stamp < start && !self.travelled(&scan) => return Ok(None),
+                _ => {
+                    self.next_start_s = Some(scan.stamp + self.cfg.interval_s);
+                    self.start_position = Some(scan.world_from_body.translation.vector);
+                }
             }
         }
+        let travelled = self.travelled(&scan);
         self.window.push(scan);
-        if self.window.len() >= self.cfg.scans_per_submap {
+        if self.window.len() >= self.cfg.scans_per_submap || travelled {
             return Ok(self.finish_window());
         }
         Ok(None)
+    }
+
+    /// Whether `scan` is `max_travel_m` or more from the last window's first scan.
+    fn travelled(&self, scan: &Scan) -> bool {
+        let limit = self.cfg.max_travel_m;
+        limit > 0.0
+            && self
+                .start_position
+                .is_some_and(|p| (scan.world_from_body.translation.vector - p).norm() >= limit)
     }
 
     /// [`Self::finish`] without the accumulation: the partial window, if any.
@@ -663,5 +682,46 @@ mod tests {
         }
         assert_eq!(out[3].scan_stamps.len(), 1);
         assert!(b.push(scan(0.0, 0.0, 0.0, vec![])).is_err());
+    }
+
+    /// Windows at the speed the schedule was chosen for are the time schedule's; driving
+    /// three times as fast, they close and start by the travel instead, one after another.
+    #[test]
+    fn builder_holds_the_travel_per_window_when_the_robot_speeds_up() {
+        let mut cfg = DecodConfig::tunnel().submap;
+        (cfg.scans_per_submap, cfg.interval_s) = (10, 1.0);
+        let run = |cfg: &SubmapConfig| {
+            let mut b = SubmapBuilder::new(cfg);
+            let mut windows = Vec::new();
+            // 10 Hz: 1 m/s for 4 s, then 3 m/s for 3 s.
+            for k in 0..70 {
+                let t = k as f64 * 0.1;
+                let x = if t <= 4.0 { t } else { 4.0 + 3.0 * (t - 4.0) };
+                windows.extend(b.push_window(scan(t, x, 0.0, vec![])).unwrap());
+            }
+            windows.extend(b.finish_window());
+            windows
+                .iter()
+                .map(|w| (w[0].stamp, w.len()))
+                .collect::<Vec<_>>()
+        };
+        let timed = run(&cfg);
+        cfg.max_travel_m = 1.25;
+        let both = run(&cfg);
+        // The first four windows (1 m/s: 0.9 m each) are the time schedule's.
+        assert_eq!(&both[..4], &timed[..4], "{both:?}");
+        assert_eq!(timed.len(), 7, "{timed:?}");
+        // At 3 m/s: 0.3 m a scan, closed at the fifth step (1.5 m), the next at the scan after.
+        for pair in both[4..].windows(2) {
+            let ((t0, n0), (t1, _)) = (pair[0], pair[1]);
+            assert_eq!(n0, 6, "{both:?}");
+            assert!((t1 - (t0 + 0.6)).abs() < 1e-9, "{both:?}");
+        }
+        assert!(both.len() >= 8, "{both:?}");
+        cfg.max_travel_m = f64::NAN;
+        let mut whole = DecodConfig::tunnel();
+        whole.submap = cfg;
+        let err = whole.validate().unwrap_err().to_string();
+        assert!(err.contains("submap.max_travel_m"), "{err}");
     }
 }

@@ -346,6 +346,34 @@ def test_stops_halt_the_vehicle_where_asked_and_keep_the_path() -> None:
         Trajectory(spec, np.random.default_rng(0))
 
 
+def test_a_faster_return_keeps_the_path_and_drives_it_at_its_own_speed() -> None:
+    length = 20.0
+    plain = TrajectorySpec(x_start_m=1.0, length_m=length, speed_mps=0.5, return_mode="reverse")
+    spec = TrajectorySpec(**{**plain.as_dict(), "return_speed_mps": 1.5, "stops": ((1, 0.5, 3),)})
+    tr, ref = (Trajectory(s, np.random.default_rng(0)) for s in (spec, plain))
+    # The return's cruise takes a third of the outbound's; the halt its seconds and a ramp.
+    assert tr.t_far_arrive == pytest.approx(ref.t_far_arrive)
+    back = tr.duration_s - tr.t_return_start - spec.post_s
+    assert back == pytest.approx(length / 1.5 + spec.ramp_s + 3.0 + spec.ramp_s)
+    t = np.arange(0.0, tr.duration_s, 0.01)
+    v = np.abs(np.gradient(tr.axial(t), t))
+    assert v[t < tr.t_far_arrive].max() == pytest.approx(0.5, rel=1e-3)
+    assert v[t > tr.t_return_start].max() == pytest.approx(1.5, rel=1e-3)
+    halted = (t > tr.t_return_start + 1.0) & (t < tr.duration_s - spec.post_s - 1.0) & (v < 1e-9)
+    assert np.ptp(t[halted]) == pytest.approx(3.0, abs=0.05)
+    assert np.allclose(tr.axial(t[halted]), 1.0 + 0.5 * length, atol=1e-6)
+    # The same path: the end back at the start, the pose at equal travelled distance unchanged.
+    assert tr.travelled(np.array([tr.duration_s]))[0] == pytest.approx(2 * length)
+    d = length + 7.0
+    at = np.interp(d, tr.travelled(t), t), np.interp(d, ref.travelled(t), t)
+    assert np.allclose(tr.poses(np.array([at[0]])), ref.poses(np.array([at[1]])), atol=1e-5)
+    with pytest.raises(ValueError, match="leg 1"):
+        Trajectory(
+            TrajectorySpec(**{**plain.as_dict(), "return_speed_mps": 0.0}),
+            np.random.default_rng(0),
+        )
+
+
 @pytest.mark.parametrize(
     ("scene", "sensor", "radius"), [("pe", "avia", 6.0), ("shield", "spin16", -90.0)]
 )

@@ -165,6 +165,8 @@ class Cell:
     mount_deg: tuple[float, float] = (0.0, 0.0)
     #: Halts along the legs, (leg, fraction, seconds) (``decod simulate --stop``).
     stops: tuple[tuple[float, float, float], ...] = ()
+    #: The return leg's speed, m/s (``decod simulate --return-speed``); None: the outbound's.
+    return_speed_mps: float | None = None
 
 
 @dataclass(frozen=True)
@@ -683,6 +685,7 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
         drift=SYMMETRIC_ENDPOINT_FRACTION * cell.length_m,
         identical_joints=cell.identical_joints,
         speed_mps=cell.speed_mps,
+        return_speed_mps=cell.return_speed_mps,
         scene_overrides=cell.scene_overrides or None,
         mount_deg=cell.mount_deg,
         stops=cell.stops,

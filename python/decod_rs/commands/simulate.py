@@ -54,6 +54,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--identical-joints", action="store_true", help="an aliased corridor")
     p.add_argument("--speed", type=float, default=None, help="m/s")
     p.add_argument(
+        "--return-speed",
+        type=float,
+        default=None,
+        metavar="M/S",
+        help="the return leg's speed (default: --speed), e.g. a crawler that inspects slowly "
+        "on the way out and comes back fast",
+    )
+    p.add_argument(
         "--mount",
         type=_mount,
         default=(0.0, 0.0),
@@ -158,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
         distinctiveness=args.distinctiveness,
         identical_joints=args.identical_joints,
         speed_mps=args.speed,
+        return_speed_mps=args.return_speed,
         sensor_overrides=overrides or None,
         scene_overrides=dict(args.scene_params) or None,
         world_seed=args.world_seed,

@@ -72,6 +72,7 @@ class Simulation:
         distinctiveness: float | None = None,
         identical_joints: bool = False,
         speed_mps: float | None = None,
+        return_speed_mps: float | None = None,
         sensor_overrides: dict[str, Any] | None = None,
         imu: ImuSpec | None = None,
         scene_overrides: dict[str, Any] | None = None,
@@ -92,7 +93,9 @@ class Simulation:
         self.identical_joints = bool(identical_joints)
         length = defaults.length_m if length_m is None else float(length_m)
         speed = defaults.speed_mps if speed_mps is None else float(speed_mps)
-        self.traj_spec = _trajectory_spec(defaults, length, speed, return_mode, mount_deg, stops)
+        self.traj_spec = _trajectory_spec(
+            defaults, length, speed, return_mode, mount_deg, stops, return_speed_mps
+        )
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
         self.scene: Scene = build_scene(
@@ -311,6 +314,7 @@ def generate(
     distinctiveness: float | None = None,
     identical_joints: bool = False,
     speed_mps: float | None = None,
+    return_speed_mps: float | None = None,
     sensor_overrides: dict[str, Any] | None = None,
     scan_indices: list[int] | None = None,
     scene_overrides: dict[str, Any] | None = None,
@@ -332,6 +336,7 @@ def generate(
         distinctiveness=distinctiveness,
         identical_joints=identical_joints,
         speed_mps=speed_mps,
+        return_speed_mps=return_speed_mps,
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
         world_seed=world_seed,
@@ -566,9 +571,11 @@ def _trajectory_spec(
     return_mode: str | None,
     mount_deg: tuple[float, float],
     stops: Sequence[tuple[float, float, float]] = (),
+    return_speed: float | None = None,
 ) -> TrajectorySpec:
     """The run's trajectory: the scene's ``defaults`` (:func:`defaults_for`) with the length,
-    speed, return mode (None: the scene's), sensor mount and stops asked for."""
+    speed, return mode (None: the scene's), sensor mount, stops and return speed (None: the
+    outbound's) asked for."""
     if not (np.isfinite(length) and length > 0):
         raise ValueError(f"length_m must be > 0, got {length}")
     roll, pitch = _mount(mount_deg)
@@ -587,6 +594,7 @@ def _trajectory_spec(
         mount_roll_rad=float(np.radians(roll)),
         mount_pitch_rad=float(np.radians(pitch)),
         stops=tuple((float(a), float(b), float(c)) for a, b, c in stops),
+        return_speed_mps=None if return_speed is None else float(return_speed),
     )
 
 
@@ -633,6 +641,7 @@ def simulate(
     distinctiveness: float | None = None,
     identical_joints: bool = False,
     speed_mps: float | None = None,
+    return_speed_mps: float | None = None,
     sensor_overrides: dict[str, Any] | None = None,
     scene_overrides: dict[str, Any] | None = None,
     world_seed: int | None = None,
@@ -661,6 +670,8 @@ def simulate(
     own noise and drift. ``mount_deg``: the sensor's static mount, ``(roll, pitch)`` in
     degrees (pitch positive nose down), which the scans, odometry, IMU and ground truth all
     carry (:class:`TrajectorySpec`).
+    ``return_speed_mps``: the return leg's cruise speed (None: ``speed_mps``), a robot that
+    inspects on the way out and drives back faster.
     ``stops``: halts along the legs, ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return;
     :class:`TrajectorySpec`), as an inspection robot makes at defects.
     ``curve_radius_m``: the corridor curves in the horizontal plane with this radius
@@ -691,6 +702,7 @@ def simulate(
         distinctiveness=distinctiveness,
         identical_joints=identical_joints,
         speed_mps=speed_mps,
+        return_speed_mps=return_speed_mps,
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
         world_seed=world_seed,

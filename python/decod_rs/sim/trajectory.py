@@ -3,7 +3,9 @@
 The vehicle stands still for ``pre_s``, drives ``length_m`` out with cosine speed ramps,
 stops at the far end (``reverse``: drives back with the heading unchanged, a pipe crawler;
 ``turn``: turns 180 deg in place, then drives back), and stands still for ``post_s``.
-``stops`` make it halt along a leg, as an inspection robot does at a defect: each
+``return_speed_mps`` drives the return at another cruise speed than the outbound (a
+crawler that inspects slowly on the way out and comes back fast). ``stops`` make it halt
+along a leg, as an inspection robot does at a defect: each
 ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return) slows down over ``ramp_s`` to stand
 still about ``fraction`` of the way along that leg, stays for ``seconds`` and drives on
 (a time warp of the leg: the path and the wobble along it are unchanged).
@@ -132,6 +134,14 @@ class TrajectorySpec:
     #: Halts along the legs: ``(leg, fraction, seconds)``, leg 0 (outbound) or 1 (return),
     #: ``fraction`` of the leg's length in (0, 1) (within the cruise, away from the ramps).
     stops: tuple[tuple[float, float, float], ...] = ()
+    #: The return leg's cruise speed (m/s); None: ``speed_mps``, as the outbound.
+    return_speed_mps: float | None = None
+
+    def leg_speed(self, leg: int) -> float:
+        """The cruise speed of ``leg`` (0 outbound, 1 return), m/s."""
+        if leg == 1 and self.return_speed_mps is not None:
+            return float(self.return_speed_mps)
+        return float(self.speed_mps)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -153,7 +163,9 @@ def _halted(t: F64, ramp: float, hold: float) -> F64:
     return slowing + stopped + resuming
 
 
-def _halts(spec: TrajectorySpec, leg_s: float) -> tuple[list[tuple[float, float]], ...]:
+def _halts(
+    spec: TrajectorySpec, leg_s: tuple[float, float]
+) -> tuple[list[tuple[float, float]], ...]:
     """Per leg, its stops as ``(elapsed time the slowing starts, seconds)`` in order; a stop
     is refused unless it lies within the leg's cruise (the ramps at either end are the leg's
     own start and stop) and a ramp of motion away from the leg's other stops (two halts
@@ -164,8 +176,8 @@ def _halts(spec: TrajectorySpec, leg_s: float) -> tuple[list[tuple[float, float]
         if leg not in (0.0, 1.0) or not (np.isfinite(hold) and hold > 0.0):
             raise ValueError(f"stop {stop}: leg must be 0 or 1 and seconds > 0")
         # Motion time at which the vehicle is `fraction` along (cruise: d = v (tau - ramp/2)).
-        tau = fraction * spec.length_m / spec.speed_mps + 0.5 * spec.ramp_s
-        if not (2.0 * spec.ramp_s <= tau <= leg_s - 2.0 * spec.ramp_s):
+        tau = fraction * spec.length_m / spec.leg_speed(int(leg)) + 0.5 * spec.ramp_s
+        if not (2.0 * spec.ramp_s <= tau <= leg_s[int(leg)] - 2.0 * spec.ramp_s):
             raise ValueError(f"stop {stop}: fraction must lie within the leg's cruise")
         legs[int(leg)].append((tau, hold))
     out: tuple[list[tuple[float, float]], ...] = ([], [])
@@ -188,17 +200,25 @@ class Trajectory:
     def __init__(self, spec: TrajectorySpec, rng: np.random.Generator) -> None:
         if spec.return_mode not in ("reverse", "turn"):
             raise ValueError(f"return_mode must be 'reverse' or 'turn', got {spec.return_mode!r}")
-        if spec.speed_mps <= 0 or spec.length_m <= spec.speed_mps * spec.ramp_s:
-            raise ValueError(
-                f"length_m ({spec.length_m}) must exceed speed_mps * ramp_s "
-                f"({spec.speed_mps * spec.ramp_s}) and speed_mps must be > 0"
-            )
+        for leg in (0, 1):
+            sp = spec.leg_speed(leg)
+            if not (np.isfinite(sp) and sp > 0) or spec.length_m <= sp * spec.ramp_s:
+                raise ValueError(
+                    f"length_m ({spec.length_m}) must exceed the speed times ramp_s "
+                    f"({sp * spec.ramp_s}) and the speed of leg {leg} must be > 0"
+                )
         self.spec = spec
-        # Motion time of a leg (without its stops) and, per leg, its stops' warps.
-        self.leg_s = spec.length_m / spec.speed_mps + spec.ramp_s
+        # Motion time of each leg (without its stops) and, per leg, its stops' warps.
+        self.leg_s = (
+            spec.length_m / spec.leg_speed(0) + spec.ramp_s,
+            spec.length_m / spec.leg_speed(1) + spec.ramp_s,
+        )
         self._halts = _halts(spec, self.leg_s)
         self.stop_s = spec.turn_s if spec.return_mode == "turn" else spec.pause_s
-        out_s, back_s = (self.leg_s + sum(h + spec.ramp_s for _, h in leg) for leg in self._halts)
+        out_s, back_s = (
+            motion + sum(h + spec.ramp_s for _, h in halts)
+            for motion, halts in zip(self.leg_s, self._halts, strict=True)
+        )
         self.t_far_arrive = spec.pre_s + out_s
         self.t_return_start = self.t_far_arrive + self.stop_s
         self.duration_s = self.t_return_start + back_s + spec.post_s
@@ -217,9 +237,9 @@ class Trajectory:
             phases = rng.uniform(0.0, 2.0 * np.pi, 3)
             self._wob[name] = (2.0 * np.pi / wavelengths, amps, phases)
 
-    def _leg(self, tau: F64) -> F64:
-        """Distance covered ``tau`` seconds into a leg (cosine speed ramps)."""
-        sp, tr, tl = self.spec.speed_mps, self.spec.ramp_s, self.leg_s
+    def _leg(self, leg: int, tau: F64) -> F64:
+        """Distance covered ``tau`` seconds into ``leg`` (cosine speed ramps)."""
+        sp, tr, tl = self.spec.leg_speed(leg), self.spec.ramp_s, self.leg_s[leg]
         tau = np.clip(tau, 0.0, tl)
 
         def up(t: F64) -> F64:
@@ -240,8 +260,8 @@ class Trajectory:
 
     def _legs(self, t: F64) -> tuple[F64, F64]:
         """Distance covered on the outbound and on the return leg at times ``t``."""
-        out = self._leg(self._motion(0, t - self.spec.pre_s))
-        back = self._leg(self._motion(1, t - self.t_return_start))
+        out = self._leg(0, self._motion(0, t - self.spec.pre_s))
+        back = self._leg(1, self._motion(1, t - self.t_return_start))
         return out, back
 
     def travelled(self, t: F64) -> F64:

@@ -157,7 +157,7 @@ def stall_check(
     rate = float(1.0 / np.median(np.diff(stamps)))
     n = _window_scans(auto, rate)
     values = cfg.to_dict()
-    values["submap"].update(scans_per_submap=n, interval_s=n / rate)
+    values["submap"].update(scans_per_submap=n, interval_s=n / rate, max_travel_m=0.0)
     short = Config(values)
     sample = _sample(stamps)
     if sample is not None:

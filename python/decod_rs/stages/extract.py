@@ -42,6 +42,9 @@ class SubmapLandmarks:
     #: Submaps cut before an end face in view (a tunnel's end, a pipe's cap) whose part before
     #: it was a corridor (``decod_rs._core.SubmapDiagnostics.end_face``).
     end_face_submaps: int = 0
+    #: Windows closed by ``submap.max_travel_m`` before ``scans_per_submap`` scans (the
+    #: robot faster than the speed the schedule was chosen for).
+    travel_submaps: int = 0
     #: End faces in view of the anchors (:mod:`decod_rs.end_faces`).
     faces: list[FaceView] = field(default_factory=list)
 
@@ -151,8 +154,11 @@ def extract(
     bar = Progress(label, processor.total_scans_hint or None, enabled=progress)
     out = SubmapLandmarks()
     read = 0
+    spans: list[tuple[float, float, int]] = []
     while (batch := processor.step()) is not None:
         for submap in batch:
+            window = submap.scan_stamps
+            spans.append((float(window[0]), float(window[-1]), int(window.size)))
             out.anchor_stamps.append(submap.anchor_stamp)
             out.anchor_poses.append(submap.world_from_anchor)
             out.landmarks.extend(submap.result.landmarks)
@@ -172,7 +178,24 @@ def extract(
         bar.advance(processor.scans_read - read)
         read = processor.scans_read
     bar.close()
+    out.travel_submaps = _closed_by_travel(processor, spans, cfg)
     return processor, out
+
+
+def _closed_by_travel(
+    processor: _core.LogProcessor, spans: list[tuple[float, float, int]], cfg: Config
+) -> int:
+    """How many windows (first and last scan stamp, scans) ``submap.max_travel_m`` closed:
+    short of ``scans_per_submap`` scans, their last scan that far from their first."""
+    limit = float(cfg.submap.max_travel_m)
+    short = [s for s in spans if s[2] < int(cfg.submap.scans_per_submap)]
+    if limit <= 0.0 or not short:
+        return 0
+    stamps, poses = scan_odometry(processor)
+    ends = np.searchsorted(stamps, np.asarray([s[:2] for s in short]))
+    ends = np.clip(ends, 0, stamps.size - 1)
+    moved = np.linalg.norm(poses[ends[:, 1], :3, 3] - poses[ends[:, 0], :3, 3], axis=1)
+    return int(np.count_nonzero(moved >= limit))
 
 
 def scan_odometry(processor: _core.LogProcessor) -> tuple[FloatArray, FloatArray]:

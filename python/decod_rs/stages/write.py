@@ -55,6 +55,8 @@ class RunSummary:
     rejections: dict[str, int] = field(default_factory=dict)
     #: Submaps cut before an end face in view (``report.json`` ``counts``).
     end_face_submaps: int = 0
+    #: Windows ``submap.max_travel_m`` closed (``report.json`` ``counts``).
+    travel_submaps: int = 0
     #: Clouds before the odometry's first pose or after its last (``ingest``), not used.
     clouds_outside_odometry: int = 0
 
@@ -196,6 +198,7 @@ def run_summary(
         timings_s=timings,
         rejections=ex.rejections,
         end_face_submaps=ex.end_face_submaps,
+        travel_submaps=ex.travel_submaps,
         clouds_outside_odometry=len(processor.skipped_outside_odometry),
     )
 
@@ -242,6 +245,7 @@ def run_report(
             "skipped_in_odometry_gaps": len(processor.health()[2]),
             "submaps": summary.submaps,
             "submaps_cut_at_end_face": summary.end_face_submaps,
+            "submaps_closed_by_travel": summary.travel_submaps,
             "landmarks": summary.landmarks,
             "tracks": int(np.unique(matched.tracks).size),
             "joints": len(joints),
