@@ -60,3 +60,21 @@ def test_runners_are_still_importable_by_name() -> None:
     for module in (decod_rs.batch, decod_rs.sim):
         with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
             _ = module.nonexistent  # type: ignore[attr-defined]
+
+
+def test_the_summary_names_windows_closed_by_travel_and_end_faces(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from pathlib import Path
+
+    from decod_rs.commands.run import print_summary
+    from decod_rs.stages.write import RunSummary
+
+    summary = RunSummary(Path("out"), 100, 12, 30, 5, 2, "batch", None, 10.0)
+    print_summary(summary)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("submaps"))
+    assert line.split() == ["submaps", "12,", "landmarks", "30"]
+    summary.end_face_submaps, summary.travel_submaps = 2, 5
+    print_summary(summary)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("submaps"))
+    assert "(2 cut before an end face in view; 5 closed by their travel" in line

@@ -227,6 +227,7 @@ def _fresh(
     speed_mps: float | None = None,
     mount_deg: tuple[float, float] = (0.0, 0.0),
     stops: tuple[tuple[float, float, float], ...] = (),
+    return_speed_mps: float | None = None,
     **overrides: float,
 ) -> Cell:
     """A fresh-tier cell: scene, sensor and return mode read from ``name`` (the matrix's
@@ -245,6 +246,7 @@ def _fresh(
         variant=variant,
         mount_deg=mount_deg,
         stops=stops,
+        return_speed_mps=return_speed_mps,
         profiles=(SYMMETRIC, UNEVEN, OVERLONG),
     )
 
@@ -257,8 +259,11 @@ def _fresh(
 #: mount the sensor pitched or rolled, which no other cell does; the two after them (added
 #: with the simulator's stops, first run as they are) halt along the way, as an inspection
 #: robot does at defects, which no other cell does.
-#: The last four (added with the simulator's water, ``water_depth_m``, first run as they
-#: are) are sewers with flow: the water hides the bottom of the pipe.
+#: The four after them (added with the simulator's water, ``water_depth_m``, first run as
+#: they are) are sewers with flow: the water hides the bottom of the pipe. The last two
+#: (added with the simulator's ``--return-speed`` and ``submap.max_travel_m``, whose rule
+#: came from seed 223) drive back faster than out, as a crawler that inspects on the way
+#: out does.
 FRESH: tuple[Cell, ...] = (
     _fresh("pe-spin16-reverse-s7-d0.8", 30.0, "pe, diameter 0.8 m", radius_m=0.4),
     _fresh(
@@ -331,6 +336,20 @@ FRESH: tuple[Cell, ...] = (
         30.0,
         "pe, water 30 % of the diameter deep",
         water_depth_m=0.12,
+    ),
+    _fresh(
+        "hume-spin16-reverse-s7-back3x",
+        30.0,
+        "hume, 0.3 m/s out and 0.9 m/s back",
+        speed_mps=0.3,
+        return_speed_mps=0.9,
+    ),
+    _fresh(
+        "horseshoe-spin64-turn-s7-back2.5x",
+        40.0,
+        "horseshoe, 0.6 m/s out and 1.5 m/s back",
+        speed_mps=0.6,
+        return_speed_mps=1.5,
     ),
 )
 
@@ -1023,6 +1042,7 @@ def _base_row(cell: Cell, profile: str, preset: str | None) -> dict[str, Any]:
         "seed": cell.seed,
         "length_m": cell.length_m,
         "speed_mps": cell.speed_mps or SCENES[cell.scene].speed_mps,
+        "return_speed_mps": cell.return_speed_mps,
         "scene_overrides": dict(cell.scene_overrides),
         "variant": cell.variant,
         "held_out": cell.held_out,

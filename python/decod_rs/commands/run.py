@@ -99,8 +99,14 @@ def print_summary(summary: RunSummary) -> None:
     unused = summary.clouds_outside_odometry
     outside = f"; {unused} clouds outside the odometry's span not used" if unused else ""
     print(f"scans          {summary.scans} ({summary.log_duration_s:.1f} s of log{outside})")
-    cut = summary.end_face_submaps
-    ends = f" ({cut} cut before an end face in view)" if cut else ""
+    notes = []
+    if summary.end_face_submaps:
+        notes.append(f"{summary.end_face_submaps} cut before an end face in view")
+    if summary.travel_submaps:
+        notes.append(
+            f"{summary.travel_submaps} closed by their travel, faster than the schedule's speed"
+        )
+    ends = f" ({'; '.join(notes)})" if notes else ""
     print(f"submaps        {summary.submaps}, landmarks {summary.landmarks}{ends}")
     rej = ", ".join(f"{k} {v}" for k, v in sorted(summary.rejections.items())) or "none"
     print(f"rejected       {rej}")
