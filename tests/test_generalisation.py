@@ -176,7 +176,9 @@ def test_a_crawler_that_stops_along_the_way_is_corrected(tmp_path: Path) -> None
     )
 
 
-def test_a_return_driven_faster_than_the_outbound_is_corrected(tmp_path: Path) -> None:
+def test_a_return_driven_faster_than_the_outbound_is_corrected(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     # Out at 0.8 m/s, inspecting; back at 2 m/s, 2.5 times as fast, with the odometry 5 %
     # short out and 15 % short back. The schedule is chosen for the typical speed; the
     # return's windows now close by their travel (`submap.max_travel_m`). With the time
@@ -198,6 +200,11 @@ def test_a_return_driven_faster_than_the_outbound_is_corrected(tmp_path: Path) -
     )
     assert report["counts"]["submaps_closed_by_travel"] > 0, report["counts"]
     _assert_corrected(result, report)
+    # `decod run` tells the user the travel that closes a window.
+    travel = report["auto"]["derived"]["submap"]["max_travel_m"]
+    print_setup(report)
+    auto_line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("auto"))
+    assert auto_line.endswith(f" or {travel:.2f} m of travel"), auto_line
 
 
 def _corrected_crawler_run(tmp_path: Path, **sim_args: Any) -> dict:

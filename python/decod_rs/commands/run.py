@@ -174,11 +174,13 @@ def print_setup(report: dict[str, Any]) -> None:
     if auto:
         submap, schedule = auto["derived"]["submap"], auto.get("schedule") or {}
         rule = str(schedule.get("rule", "")).replace("_", " ")
+        travel = float(submap.get("max_travel_m") or 0.0)  # absent from older reports
         print(
             f"auto           {auto['corridor']}, radius {auto['measured']['radius_m']:.2f} m, "
             f"voxel {1e3 * submap['voxel_m']:.1f} mm, range {submap['min_range_m']:.2f}-"
             f"{submap['max_range_m']:.2f} m, a submap every {submap['interval_s']:.2f} s "
             f"({submap['scans_per_submap']} scans{'; set by the ' + rule if rule else ''})"
+            + (f" or {travel:.2f} m of travel" if travel > 0.0 else "")
         )
         curvature = auto["measured"].get("curvature_per_m") or 0.0
         if (auto["derived"].get("axis") or {}).get("curved") and curvature > 0:
