@@ -374,6 +374,33 @@ def test_a_faster_return_keeps_the_path_and_drives_it_at_its_own_speed() -> None
         )
 
 
+@pytest.mark.parametrize("mode", ["turn", "reverse"])
+def test_a_return_in_the_other_lane_heads_along_its_path(mode: str) -> None:
+    from decod_rs.sim.trajectory import LANE_CHANGE_M
+
+    plain = TrajectorySpec(x_start_m=1.0, length_m=40.0, speed_mps=1.0, return_mode=mode)
+    spec = TrajectorySpec(**{**plain.as_dict(), "return_lateral_m": 2.0})
+    tr, ref = (Trajectory(s, np.random.default_rng(0)) for s in (spec, plain))
+    t = np.arange(0.0, tr.duration_s, 0.05)
+    moved = tr.poses(t)[:, :3, 3] - ref.poses(t)[:, :3, 3]
+    back = tr.travelled(t) - 40.0
+    # The outbound as before; the return 2 m to the side once the lane change is over.
+    assert np.abs(moved[back <= 0.0]).max() < 1e-12
+    assert np.allclose(moved[back >= LANE_CHANGE_M], [0.0, 2.0, 0.0], atol=1e-9)
+    # While it changes lane the body turns with its path: moving along -x, a path that
+    # gains dy/d(back) to the left turns the body by -atan of it.
+    changing = (back > 1.0) & (back < LANE_CHANGE_M - 1.0)
+    slope = np.gradient(moved[:, 1], back)[changing]
+    fwd, fwd_ref = (p.poses(t)[changing][:, :2, 0] for p in (tr, ref))
+    turned = np.angle(
+        (fwd[:, 0] + 1j * fwd[:, 1]) / (fwd_ref[:, 0] + 1j * fwd_ref[:, 1])
+    )  # wrapped to (-pi, pi]
+    assert np.abs(slope).max() > 0.2  # pi / 15: 12 deg at the middle of the change
+    assert np.allclose(turned, -np.arctan(slope), atol=2e-3)
+    with pytest.raises(ValueError, match="return_lateral_m"):
+        Simulation("hume", return_lateral_m=0.5)
+
+
 @pytest.mark.parametrize(
     ("scene", "sensor", "radius"), [("pe", "avia", 6.0), ("shield", "spin16", -90.0)]
 )

@@ -167,6 +167,8 @@ class Cell:
     stops: tuple[tuple[float, float, float], ...] = ()
     #: The return leg's speed, m/s (``decod simulate --return-speed``); None: the outbound's.
     return_speed_mps: float | None = None
+    #: The return's sideways offset, m (``decod simulate --return-lateral``).
+    return_lateral_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -705,6 +707,7 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
         identical_joints=cell.identical_joints,
         speed_mps=cell.speed_mps,
         return_speed_mps=cell.return_speed_mps,
+        return_lateral_m=cell.return_lateral_m,
         scene_overrides=cell.scene_overrides or None,
         mount_deg=cell.mount_deg,
         stops=cell.stops,

@@ -62,6 +62,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "on the way out and comes back fast",
     )
     p.add_argument(
+        "--return-lateral",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="the return runs this far to the side (left of the outbound direction; within "
+        "0.6 of the radius), e.g. a vehicle that comes back in a tunnel's other lane",
+    )
+    p.add_argument(
         "--mount",
         type=_mount,
         default=(0.0, 0.0),
@@ -167,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
         identical_joints=args.identical_joints,
         speed_mps=args.speed,
         return_speed_mps=args.return_speed,
+        return_lateral_m=args.return_lateral,
         sensor_overrides=overrides or None,
         scene_overrides=dict(args.scene_params) or None,
         world_seed=args.world_seed,

@@ -73,6 +73,7 @@ class Simulation:
         identical_joints: bool = False,
         speed_mps: float | None = None,
         return_speed_mps: float | None = None,
+        return_lateral_m: float = 0.0,
         sensor_overrides: dict[str, Any] | None = None,
         imu: ImuSpec | None = None,
         scene_overrides: dict[str, Any] | None = None,
@@ -96,6 +97,8 @@ class Simulation:
         self.traj_spec = _trajectory_spec(
             defaults, length, speed, return_mode, mount_deg, stops, return_speed_mps
         )
+        _check_lane(return_lateral_m, params)
+        self.traj_spec = replace(self.traj_spec, return_lateral_m=float(return_lateral_m))
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
         self.scene: Scene = build_scene(
@@ -315,6 +318,7 @@ def generate(
     identical_joints: bool = False,
     speed_mps: float | None = None,
     return_speed_mps: float | None = None,
+    return_lateral_m: float = 0.0,
     sensor_overrides: dict[str, Any] | None = None,
     scan_indices: list[int] | None = None,
     scene_overrides: dict[str, Any] | None = None,
@@ -337,6 +341,7 @@ def generate(
         identical_joints=identical_joints,
         speed_mps=speed_mps,
         return_speed_mps=return_speed_mps,
+        return_lateral_m=return_lateral_m,
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
         world_seed=world_seed,
@@ -598,6 +603,17 @@ def _trajectory_spec(
     )
 
 
+def _check_lane(side_m: float, params: dict[str, Any]) -> None:
+    """``ValueError`` unless a return ``side_m`` to the side keeps the sensor within 0.6 of
+    the section's radius of its centre line (a tunnel's other lane; a pipe has none)."""
+    radius = float(params.get("radius_m", 0.0))
+    if not (np.isfinite(side_m) and abs(side_m) <= 0.6 * radius):
+        raise ValueError(
+            f"return_lateral_m: {side_m} m must be finite and within 0.6 of the radius "
+            f"({0.6 * radius:.2f} m) of the centre line"
+        )
+
+
 def _at_height(
     defaults: SceneDefaults, params: dict[str, Any], height_m: float | None
 ) -> SceneDefaults:
@@ -642,6 +658,7 @@ def simulate(
     identical_joints: bool = False,
     speed_mps: float | None = None,
     return_speed_mps: float | None = None,
+    return_lateral_m: float = 0.0,
     sensor_overrides: dict[str, Any] | None = None,
     scene_overrides: dict[str, Any] | None = None,
     world_seed: int | None = None,
@@ -671,7 +688,9 @@ def simulate(
     degrees (pitch positive nose down), which the scans, odometry, IMU and ground truth all
     carry (:class:`TrajectorySpec`).
     ``return_speed_mps``: the return leg's cruise speed (None: ``speed_mps``), a robot that
-    inspects on the way out and drives back faster.
+    inspects on the way out and drives back faster. ``return_lateral_m``: the return runs
+    that far to the side (m, to the left of the outbound direction; within 0.6 of the radius),
+    a vehicle that comes back in a tunnel's other lane.
     ``stops``: halts along the legs, ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return;
     :class:`TrajectorySpec`), as an inspection robot makes at defects.
     ``curve_radius_m``: the corridor curves in the horizontal plane with this radius
@@ -703,6 +722,7 @@ def simulate(
         identical_joints=identical_joints,
         speed_mps=speed_mps,
         return_speed_mps=return_speed_mps,
+        return_lateral_m=return_lateral_m,
         sensor_overrides=sensor_overrides,
         scene_overrides=scene_overrides,
         world_seed=world_seed,

@@ -22,6 +22,10 @@ import numpy as np
 
 from decod_rs.sim.fields import F64
 
+#: Metres of the return over which a vehicle changes lane (``return_lateral_m``): a road
+#: vehicle's lane change at walking pace, turning at most 15-20 deg for 3-4 m to the side.
+LANE_CHANGE_M = 15.0
+
 
 def rot_x(a: F64) -> F64:
     c, s = np.cos(a), np.sin(a)
@@ -136,6 +140,10 @@ class TrajectorySpec:
     stops: tuple[tuple[float, float, float], ...] = ()
     #: The return leg's cruise speed (m/s); None: ``speed_mps``, as the outbound.
     return_speed_mps: float | None = None
+    #: The return leg runs this far to the side of the outbound (m, world +y to the left of
+    #: the outbound direction): a vehicle that comes back in the other lane of a tunnel. It
+    #: changes lane over the first ``LANE_CHANGE_M`` of the return, heading along its path.
+    return_lateral_m: float = 0.0
 
     def leg_speed(self, leg: int) -> float:
         """The cruise speed of ``leg`` (0 outbound, 1 return), m/s."""
@@ -284,16 +292,32 @@ class Trajectory:
         frac = np.clip((t - self.t_far_arrive) / self.stop_s, 0.0, 1.0)
         return np.pi * frac * frac * (3.0 - 2.0 * frac)
 
+    def _lane(self, t: F64) -> tuple[F64, F64]:
+        """The return's lane change at times ``t``: the sideways offset (m) and the yaw (rad)
+        that heads the body along the path (a cosine step over ``LANE_CHANGE_M``)."""
+        side = self.spec.return_lateral_m
+        _, back = self._legs(t)
+        if side == 0.0:
+            return np.zeros_like(back), np.zeros_like(back)
+        u = np.clip(back / LANE_CHANGE_M, 0.0, 1.0)
+        offset = 0.5 * side * (1.0 - np.cos(np.pi * u))
+        slope = 0.5 * side * np.pi / LANE_CHANGE_M * np.sin(np.pi * u)
+        # Along -x, the path's direction is (-1, slope): facing -x (turn) or +x (reverse),
+        # the body turns by -atan(slope) to lie along it.
+        return offset, -np.arctan(slope)
+
     def poses(self, t: F64) -> F64:
         """``world_from_body`` ``(N, 4, 4)`` at times ``t (N,)`` (seconds from the start)."""
         t = np.asarray(t, dtype=np.float64)
         d = self.travelled(t)
         s = self.spec
+        lane, lane_yaw = self._lane(t)
         pos = np.stack(
-            [self.axial(t), s.y0_m + self._wobble("y", d), s.z0_m + self._wobble("z", d)], axis=1
+            [self.axial(t), s.y0_m + lane + self._wobble("y", d), s.z0_m + self._wobble("z", d)],
+            axis=1,
         )
         rot = (
-            rot_z(self.heading(t) + self._wobble("yaw", d))
+            rot_z(self.heading(t) + lane_yaw + self._wobble("yaw", d))
             @ rot_y(self._wobble("pitch", d))
             @ rot_x(self._wobble("roll", d))
             @ rot_y(np.full_like(t, s.mount_pitch_rad))
