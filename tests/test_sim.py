@@ -390,7 +390,7 @@ def test_a_return_in_the_other_lane_heads_along_its_path(mode: str) -> None:
     # While it changes lane the body turns with its path: moving along -x, a path that
     # gains dy/d(back) to the left turns the body by -atan of it.
     changing = (back > 1.0) & (back < LANE_CHANGE_M - 1.0)
-    slope = np.gradient(moved[:, 1], back)[changing]
+    slope = np.gradient(moved[changing, 1], back[changing])
     fwd, fwd_ref = (p.poses(t)[changing][:, :2, 0] for p in (tr, ref))
     turned = np.angle(
         (fwd[:, 0] + 1j * fwd[:, 1]) / (fwd_ref[:, 0] + 1j * fwd_ref[:, 1])

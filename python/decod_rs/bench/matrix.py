@@ -230,6 +230,7 @@ def _fresh(
     mount_deg: tuple[float, float] = (0.0, 0.0),
     stops: tuple[tuple[float, float, float], ...] = (),
     return_speed_mps: float | None = None,
+    return_lateral_m: float = 0.0,
     **overrides: float,
 ) -> Cell:
     """A fresh-tier cell: scene, sensor and return mode read from ``name`` (the matrix's
@@ -249,6 +250,7 @@ def _fresh(
         mount_deg=mount_deg,
         stops=stops,
         return_speed_mps=return_speed_mps,
+        return_lateral_m=return_lateral_m,
         profiles=(SYMMETRIC, UNEVEN, OVERLONG),
     )
 
@@ -265,7 +267,9 @@ def _fresh(
 #: they are) are sewers with flow: the water hides the bottom of the pipe. The last two
 #: (added with the simulator's ``--return-speed`` and ``submap.max_travel_m``, whose rule
 #: came from seed 223) drive back faster than out, as a crawler that inspects on the way
-#: out does.
+#: out does; the two after them (added with ``--return-lateral``, seed 229 showed the
+#: forward sensor in the arched horseshoe failing from the other lane) come back in a
+#: tunnel's other lane.
 FRESH: tuple[Cell, ...] = (
     _fresh("pe-spin16-reverse-s7-d0.8", 30.0, "pe, diameter 0.8 m", radius_m=0.4),
     _fresh(
@@ -352,6 +356,19 @@ FRESH: tuple[Cell, ...] = (
         "horseshoe, 0.6 m/s out and 1.5 m/s back",
         speed_mps=0.6,
         return_speed_mps=1.5,
+    ),
+    _fresh(
+        "shield-spin64-turn-s7-lane1.5",
+        40.0,
+        "shield, the return 1.5 m to the side (the other lane)",
+        return_lateral_m=1.5,
+    ),
+    _fresh(
+        "horseshoe-avia-turn-s7-lane1.2",
+        40.0,
+        "horseshoe, the return 1.2 m to the side (the other lane)",
+        speed_mps=1.0,
+        return_lateral_m=1.2,
     ),
 )
 
@@ -1046,6 +1063,7 @@ def _base_row(cell: Cell, profile: str, preset: str | None) -> dict[str, Any]:
         "length_m": cell.length_m,
         "speed_mps": cell.speed_mps or SCENES[cell.scene].speed_mps,
         "return_speed_mps": cell.return_speed_mps,
+        "return_lateral_m": cell.return_lateral_m,
         "scene_overrides": dict(cell.scene_overrides),
         "variant": cell.variant,
         "held_out": cell.held_out,
