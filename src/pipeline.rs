@@ -205,6 +205,11 @@ impl LogProcessor {
         self.reader.stream.total_scans_hint()
     }
 
+    /// Windows `submap.max_travel_m` closed so far ([`SubmapBuilder::closed_by_travel`]).
+    pub fn windows_closed_by_travel(&self) -> usize {
+        self.reader.builder.closed_by_travel()
+    }
+
     /// The point-cloud topic being read.
     pub fn points_topic(&self) -> &str {
         self.reader.stream.points_topic()

@@ -341,6 +341,8 @@ pub struct SubmapBuilder {
     next_start_s: Option<f64>,
     /// Odometry position of the last window's first scan.
     start_position: Option<Vector3<f64>>,
+    /// Windows `max_travel_m` closed before `scans_per_submap` scans.
+    closed_by_travel: usize,
     last_stamp: f64,
 }
 
@@ -352,6 +354,7 @@ impl SubmapBuilder {
             window: Vec::with_capacity(cfg.scans_per_submap),
             next_start_s: None,
             start_position: None,
+            closed_by_travel: 0,
             last_stamp: f64::NEG_INFINITY,
         }
     }
@@ -398,10 +401,20 @@ impl SubmapBuilder {
         }
         let travelled = self.travelled(&scan);
         self.window.push(scan);
-        if self.window.len() >= self.cfg.scans_per_submap || travelled {
+        if self.window.len() >= self.cfg.scans_per_submap {
+            return Ok(self.finish_window());
+        }
+        if travelled {
+            self.closed_by_travel += 1;
             return Ok(self.finish_window());
         }
         Ok(None)
+    }
+
+    /// How many windows `max_travel_m` closed before `scans_per_submap` scans (the robot
+    /// faster than the speed the schedule was chosen for).
+    pub fn closed_by_travel(&self) -> usize {
+        self.closed_by_travel
     }
 
     /// Whether `scan` is `max_travel_m` or more from the last window's first scan.

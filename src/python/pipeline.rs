@@ -146,6 +146,12 @@ impl PyLogProcessor {
     fn scans_read(&self) -> PyResult<usize> {
         Ok(self.lock()?.scan_stamps().len())
     }
+    /// Windows `submap.max_travel_m` closed so far (the robot faster than the schedule's
+    /// speed).
+    #[getter]
+    fn windows_closed_by_travel(&self) -> PyResult<usize> {
+        Ok(self.lock()?.windows_closed_by_travel())
+    }
     /// Point-cloud messages in the log (0 if unknown).
     #[getter]
     fn total_scans_hint(&self) -> PyResult<u64> {

@@ -94,11 +94,17 @@ class Simulation:
         self.identical_joints = bool(identical_joints)
         length = defaults.length_m if length_m is None else float(length_m)
         speed = defaults.speed_mps if speed_mps is None else float(speed_mps)
-        self.traj_spec = _trajectory_spec(
-            defaults, length, speed, return_mode, mount_deg, stops, return_speed_mps
-        )
         _check_lane(return_lateral_m, params)
-        self.traj_spec = replace(self.traj_spec, return_lateral_m=float(return_lateral_m))
+        self.traj_spec = _trajectory_spec(
+            defaults,
+            length,
+            speed,
+            return_mode,
+            mount_deg,
+            stops,
+            return_speed_mps,
+            float(return_lateral_m),
+        )
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
         self.scene: Scene = build_scene(
@@ -577,10 +583,11 @@ def _trajectory_spec(
     mount_deg: tuple[float, float],
     stops: Sequence[tuple[float, float, float]] = (),
     return_speed: float | None = None,
+    return_lateral: float = 0.0,
 ) -> TrajectorySpec:
     """The run's trajectory: the scene's ``defaults`` (:func:`defaults_for`) with the length,
-    speed, return mode (None: the scene's), sensor mount, stops and return speed (None: the
-    outbound's) asked for."""
+    speed, return mode (None: the scene's), sensor mount, stops, return speed (None: the
+    outbound's) and return lane offset asked for."""
     if not (np.isfinite(length) and length > 0):
         raise ValueError(f"length_m must be > 0, got {length}")
     roll, pitch = _mount(mount_deg)
@@ -600,6 +607,7 @@ def _trajectory_spec(
         mount_pitch_rad=float(np.radians(pitch)),
         stops=tuple((float(a), float(b), float(c)) for a, b, c in stops),
         return_speed_mps=None if return_speed is None else float(return_speed),
+        return_lateral_m=return_lateral,
     )
 
 

@@ -154,11 +154,8 @@ def extract(
     bar = Progress(label, processor.total_scans_hint or None, enabled=progress)
     out = SubmapLandmarks()
     read = 0
-    spans: list[tuple[float, float, int]] = []
     while (batch := processor.step()) is not None:
         for submap in batch:
-            window = submap.scan_stamps
-            spans.append((float(window[0]), float(window[-1]), int(window.size)))
             out.anchor_stamps.append(submap.anchor_stamp)
             out.anchor_poses.append(submap.world_from_anchor)
             out.landmarks.extend(submap.result.landmarks)
@@ -178,24 +175,8 @@ def extract(
         bar.advance(processor.scans_read - read)
         read = processor.scans_read
     bar.close()
-    out.travel_submaps = _closed_by_travel(processor, spans, cfg)
+    out.travel_submaps = processor.windows_closed_by_travel
     return processor, out
-
-
-def _closed_by_travel(
-    processor: _core.LogProcessor, spans: list[tuple[float, float, int]], cfg: Config
-) -> int:
-    """How many windows (first and last scan stamp, scans) ``submap.max_travel_m`` closed:
-    short of ``scans_per_submap`` scans, their last scan that far from their first."""
-    limit = float(cfg.submap.max_travel_m)
-    short = [s for s in spans if s[2] < int(cfg.submap.scans_per_submap)]
-    if limit <= 0.0 or not short:
-        return 0
-    stamps, poses = scan_odometry(processor)
-    ends = np.searchsorted(stamps, np.asarray([s[:2] for s in short]))
-    ends = np.clip(ends, 0, stamps.size - 1)
-    moved = np.linalg.norm(poses[ends[:, 1], :3, 3] - poses[ends[:, 0], :3, 3], axis=1)
-    return int(np.count_nonzero(moved >= limit))
 
 
 def scan_odometry(processor: _core.LogProcessor) -> tuple[FloatArray, FloatArray]:
