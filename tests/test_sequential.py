@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 
 from decod_rs._core import Landmark
+from decod_rs.chainage import MIN_STEP_M, outbound_course
 from decod_rs.evaluate import evaluate_run
 from decod_rs.joints import landmark_chainage
 from decod_rs.pipeline import run_log
 from decod_rs.sequential import RIB_POLARITY, boundary_polarity
 from decod_rs.sim import simulate
+from decod_rs.sim.trajectory import Trajectory, TrajectorySpec
 from decod_rs.tum import interpolate_poses, read_tum
 
 
@@ -171,7 +173,8 @@ def test_chainage_follows_each_landmarks_axis_through_stops_and_turns() -> None:
     stop = creep[-1][:3, 3]
     turn = [_yaw(np.pi * k / 30, stop[0], stop[1]) for k in range(1, 31)]
     poses = np.stack(stand + drive + creep + turn)
-    to_stop = float(np.sum(np.linalg.norm(np.diff(poses[:225, :3, 3], axis=0), axis=1)))
+    # Along the corridor (x): the creep's 3 mm sideways wander is not distance along it.
+    to_stop = float(stop[0])
     stamps = 0.1 * np.arange(len(poses))
     # Landmarks (anchor frame: the pose at their stamp): a ring 3 m ahead of the standing robot,
     # its centre 1.5 m above the sensor; one seen at 5 m; a joint 2 m past the far end seen
@@ -183,7 +186,45 @@ def test_chainage_follows_each_landmarks_axis_through_stops_and_turns() -> None:
     got = landmark_chainage(stamps[seen_from], origins, axes, stamps, poses)
     assert got[0] == pytest.approx(3.0, abs=0.005)
     assert got[1] == pytest.approx(5.25, abs=0.005)  # seen from x = 5.05
-    # Past the far end: 2 m beyond the path's length at the stop (the previous rule put
-    # both views of this joint within a few centimetres of the stop).
+    # Past the far end: 2 m beyond the stop (the previous rule put both views of this joint
+    # within a few centimetres of the stop).
     assert got[2] == pytest.approx(to_stop + 2.0, abs=0.005)
     assert got[3] == pytest.approx(to_stop + 2.0, abs=0.005)
+
+
+def test_chainage_does_not_count_a_back_up_twice() -> None:
+    # A crawler drives 20 m out at 0.5 m/s, backs up 4 m half-way to look again at a defect,
+    # drives on and comes back (the simulator's trajectory, wobble and all). A joint at
+    # x = 15 m, seen just after the back-up, is 15 m along the pipe, not 23 m along the path.
+    spec = TrajectorySpec(
+        x_start_m=0.0,
+        length_m=20.0,
+        speed_mps=0.5,
+        return_mode="reverse",
+        backups=((0.0, 0.5, 4.0),),
+    )
+    traj = Trajectory(spec, np.random.default_rng(3))
+    stamps = np.arange(0.0, traj.duration_s, 0.1)
+    poses = traj.poses(stamps)
+    x = poses[:, 0, 3]
+    out = stamps <= traj.t_far_arrive
+    # Views from 3 m, from the back-up's far point (6 m: a joint the path passes three
+    # times) and from 14 m, after it.
+    backmost = int(np.argmin(np.where(out & (stamps > 20.0), x, np.inf)))
+    views = [int(np.argmax(x > 3.0)), backmost, int(np.argmax(out & (x > 14.0)))]
+    assert x[backmost] == pytest.approx(6.0, abs=0.05)
+    joints = np.array([5.0, 9.0, 15.0])
+    origins = np.zeros((3, 3))
+    for k, (i, joint) in enumerate(zip(views, joints, strict=True)):
+        origins[k] = poses[i, :3, :3].T @ (np.array([joint, 0.0, 0.0]) - poses[i, :3, 3])
+    axes = np.array([poses[i, :3, :3].T @ np.array([1.0, 0.0, 0.0]) for i in views])
+    got = landmark_chainage(stamps[views], origins, axes, stamps, poses)
+    # Within a centimetre: the wobble's few mm sideways are not distance along the pipe.
+    assert got == pytest.approx(joints, abs=0.01)
+    course = outbound_course(poses[:, :3, 3])
+    assert np.all(np.diff(course[:, 0]) > 0.0)
+    # It reaches the far end (within one step) and is as long as the pipe it covers.
+    assert course[-1, 0] > 20.0 - MIN_STEP_M
+    assert float(np.sum(np.linalg.norm(np.diff(course, axis=0), axis=1))) == pytest.approx(
+        course[-1, 0] - course[0, 0], abs=0.01
+    )

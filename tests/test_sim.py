@@ -346,6 +346,39 @@ def test_stops_halt_the_vehicle_where_asked_and_keep_the_path() -> None:
         Trajectory(spec, np.random.default_rng(0))
 
 
+def test_a_back_up_drives_back_and_forward_again_and_counts_as_travel() -> None:
+    length, speed = 20.0, 0.5
+    plain = TrajectorySpec(x_start_m=1.0, length_m=length, speed_mps=speed, return_mode="reverse")
+    spec = TrajectorySpec(**{**plain.as_dict(), "backups": ((0.0, 0.5, 3.0), (1.0, 0.5, 2.0))})
+    tr, ref = (Trajectory(s, np.random.default_rng(0)) for s in (spec, plain))
+    # Each back-up is a halt of pi * metres / v seconds (its peak speed the leg's) and a ramp.
+    held = np.pi * (3.0 + 2.0) / speed
+    assert tr.duration_s == pytest.approx(ref.duration_s + held + 2 * spec.ramp_s)
+    t = np.arange(0.0, tr.duration_s, 0.01)
+    x, v = tr.axial(t), np.gradient(tr.axial(t), t)
+    out, back = t < tr.t_far_arrive, t > tr.t_return_start
+    # Out: half-way (11 m) it goes 3 m back towards the start and on again; back: half-way
+    # (11 m) it goes 2 m back towards the far end.
+    turn_out = int(np.argmin(np.where(out & (t > 30.0), x, np.inf)))
+    assert x[turn_out] == pytest.approx(1.0 + 0.5 * length - 3.0, abs=1e-3)
+    half_back = int(np.argmax(back & (x < 1.0 + 0.5 * length + 1e-3)))
+    assert x[half_back:].max() == pytest.approx(1.0 + 0.5 * length + 2.0, abs=1e-3)
+    assert np.abs(v).max() == pytest.approx(speed, rel=1e-3)
+    assert x.max() == pytest.approx(1.0 + length) and x[-1] == pytest.approx(1.0)
+    # Travel counts the back-ups both ways and never decreases; the far end is where it was.
+    d = tr.travelled(t)
+    assert np.all(np.diff(d) >= -1e-12)
+    assert d[-1] == pytest.approx(2 * length + 2 * (3.0 + 2.0))
+    assert tr.t_far_arrive == pytest.approx(ref.t_far_arrive + np.pi * 3.0 / speed + spec.ramp_s)
+    # Smooth enough for the IMU: the back-up's acceleration 2 pi^2 m / T^2 is below the ramps'.
+    assert np.abs(np.gradient(v, t)).max() < 1.1 * np.pi * speed / (2 * spec.ramp_s)
+    # Backing up past the leg's start, or by nothing, is refused by name.
+    for bad in ((0.0, 0.2, 5.0), (0.0, 0.5, 0.0), (1.0, 0.3, np.nan)):
+        spec = TrajectorySpec(**{**plain.as_dict(), "backups": (bad,)})
+        with pytest.raises(ValueError, match="backup"):
+            Trajectory(spec, np.random.default_rng(0))
+
+
 def test_a_faster_return_keeps_the_path_and_drives_it_at_its_own_speed() -> None:
     length = 20.0
     plain = TrajectorySpec(x_start_m=1.0, length_m=length, speed_mps=0.5, return_mode="reverse")
@@ -761,6 +794,26 @@ def test_cli_curve_radius(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     # A 0.2 m pipe bent on 3 m is no gentle curve: refused, naming the parameter.
     assert cli_main([*args, "--curve-radius", "3", "--force"]) == 2
     assert "curve radius 3 m is tighter" in capsys.readouterr().err
+
+
+def test_cli_backup(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["simulate", "pe", "--out", str(tmp_path), "--length", "6", "--speed", "0.5"]
+    args += ["--rays", "100", "--drift", "none", "--quiet"]
+    assert cli_main([*args, "--backup", "out:0.5:1"]) == 0
+    assert "backup         1 m back and on, 50 % of the way out" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "joints.json").read_text())
+    assert doc["trajectory"]["backups"] == [[0.0, 0.5, 1.0]]
+    _, poses = read_tum(tmp_path / "gt.tum")
+    x = poses[:, 0, 3] - poses[0, 0, 3]
+    # Half-way out (3 m) it drives 1 m back before going on to the far end.
+    first, far = int(np.argmax(x > 2.99)), int(np.argmax(x))
+    assert np.min(x[first:far]) == pytest.approx(2.0, abs=0.02) and x[far] == pytest.approx(6.0)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as refused:
+        cli_main([*args, "--backup", "out:0.5", "--force"])
+    assert refused.value.code == 2 and "LEG:FRACTION:METRES" in capsys.readouterr().err
+    assert cli_main([*args, "--backup", "out:0.3:2.5", "--force"]) == 2
+    assert "would pass its start" in capsys.readouterr().err
 
 
 def test_cli_stop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -100,11 +100,24 @@ def test_chainage_past_a_stop_runs_along_the_corridor_not_the_last_step() -> Non
     path = np.c_[x, 0.01 * np.sin(x), np.zeros(x.size)]
     creep = path[-1] + np.array([[0.002 * k, 0.003 * (-1) ** k, 0.0] for k in range(1, 6)])
     path = np.vstack([path, creep])
-    total = float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1)))
-    # A joint 2 m past the stop, 0.3 m off the path; the first step of the path is clean.
+    # A joint 2 m past the stop, 0.3 m off the path; the first step of the path is clean. The
+    # creep's sideways millimetres are not distance along the corridor.
     got = chainage_along(path, np.array([[12.01, 0.3, 0.0], [-1.0, 0.0, 0.0]]))
-    assert got[0] == pytest.approx(total + 2.0, abs=0.01)
+    assert got[0] == pytest.approx(path[-1, 0] + 2.0, abs=0.005)
     assert got[1] == pytest.approx(-1.0, abs=1e-3)
+
+
+def test_chainage_along_a_survey_path_that_doubles_back_counts_the_corridor() -> None:
+    # A survey written before chainage ran along the forward course: its robot drove 12 m,
+    # backed up 4 m and drove on to 20 m (5 cm samples). A joint at 15 m is 15 m along the
+    # corridor (the path's length there is 23 m), one at 10 m is 10 m (the path passes it
+    # three times).
+    x = np.concatenate(
+        [np.arange(0.0, 12.0, 0.05), np.arange(12.0, 8.0, -0.05), np.arange(8.0, 20.001, 0.05)]
+    )
+    path = np.c_[x, 0.01 * np.sin(x), np.zeros(x.size)]
+    got = chainage_along(path, np.array([[15.0, 0.2, 0.0], [10.0, -0.2, 0.0], [3.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(got, [15.0, 10.0, 3.0], atol=0.01)
 
 
 def test_second_run_lands_in_the_survey_frame(runs: dict[str, Path]) -> None:

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.chainage import outbound_course
 from decod_rs.path_curve import path_length
 
 FloatArray = NDArray[np.float64]
@@ -77,7 +78,8 @@ def landmark_chainage(
     scan_stamps: FloatArray,
     corrected: FloatArray,
 ) -> FloatArray:
-    """Distance (m) from the start along the corrected outbound path to each landmark
+    """Distance (m) from the start along the corrected outbound path (its forward course,
+    :mod:`decod_rs.chainage`: a back-up does not count) to each landmark
     (``stamps`` (N,), ``origins`` and ``axes`` (N, 3) in their anchor frames; ``corrected``
     (M, 4, 4) the poses at ``scan_stamps``): the path length to the path point nearest the
     landmark's world position, plus the landmark's offset from that point along its own
@@ -88,9 +90,8 @@ def landmark_chainage(
     The direction of the path's last step stood in for the axis before: where the robot
     slows to a stop that step is millimetres of odometry noise, and joints 0.5-2.5 m past
     the turnaround of the simulated tunnels came out 0.7-1.7 m short."""
-    positions = corrected[:, :3, 3]
-    far = int(np.argmax(np.linalg.norm(positions - positions[0], axis=1)))
-    path = positions[: far + 1]
+    path = outbound_course(corrected[:, :3, 3])
+    far = path.shape[0] - 1
     arclength = path_length(path)
     out = np.empty(len(stamps))
     for k, stamp in enumerate(stamps):

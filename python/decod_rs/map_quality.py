@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs import _core
+from decod_rs.chainage import forward_course
 from decod_rs.maps import OUTBOUND, RETURN, MapCloud
 
 FloatArray = NDArray[np.float64]
@@ -97,9 +98,10 @@ class Consistency:
 
 
 def outbound_path(stamps: FloatArray, poses: FloatArray, split_stamp: float | None) -> FloatArray:
-    """Positions (P, 3) of the outbound leg (all of it without a return)."""
+    """Positions (P, 3) of the outbound leg (all of it without a return) that take the robot
+    further along (:func:`decod_rs.chainage.forward_course`: not a back-up)."""
     keep = np.ones(stamps.shape, dtype=bool) if split_stamp is None else stamps <= split_stamp
-    return np.asarray(poses, dtype=np.float64)[keep, :3, 3]
+    return forward_course(np.asarray(poses, dtype=np.float64)[keep, :3, 3])
 
 
 def _path_frame(path: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from decod_rs._core import Landmark
 from decod_rs.aliasing import aliasing
+from decod_rs.chainage import outbound_course
 from decod_rs.changes import (
     ChangePair,
     changes_summary,
@@ -49,10 +50,9 @@ __all__ = ["Reinspection", "outbound_path", "reinspect", "write_run_survey"]
 
 
 def outbound_path(poses: FloatArray) -> FloatArray:
-    """The positions (P, 3) from the start to the farthest point: what chainage runs along."""
-    positions = poses[:, :3, 3]
-    far = int(np.argmax(np.linalg.norm(positions - positions[0], axis=1)))
-    return np.asarray(positions[: far + 1], dtype=np.float64)
+    """The positions (P, 3) from the start to the farthest point that take the robot further
+    along (:func:`decod_rs.chainage.outbound_course`): what chainage runs along."""
+    return outbound_course(poses[:, :3, 3])
 
 
 def write_run_survey(

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.chainage import forward_course
 from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
 from decod_rs.joints import DIRECTION_SPAN_M
@@ -167,8 +168,12 @@ def chainage_along(path: FloatArray, points: FloatArray) -> FloatArray:
     registry does (``joints.landmark_chainage``): a joint seen past the far end gets a
     chainage past the path's length, not the length itself (a re-inspection's view of the
     survey's last joint, 2.3 m beyond the turnaround, was put at the turnaround), and not
-    along the last scan step, which is odometry noise where the robot slows to a stop."""
+    along the last scan step, which is odometry noise where the robot slows to a stop. The
+    path is taken along its forward course (:func:`decod_rs.chainage.forward_course`), so a
+    survey written before that, whose path doubles back where its robot backed up, measures
+    chainage as a new one does."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    path = forward_course(path)
     if path.shape[0] < 2:
         return np.zeros(pts.shape[0])
     a, b = path[:-1], path[1:]

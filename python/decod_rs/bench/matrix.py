@@ -169,6 +169,8 @@ class Cell:
     return_speed_mps: float | None = None
     #: The return's sideways offset, m (``decod simulate --return-lateral``).
     return_lateral_m: float = 0.0
+    #: Back-ups along the legs, (leg, fraction, metres) (``decod simulate --backup``).
+    backups: tuple[tuple[float, float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -231,6 +233,7 @@ def _fresh(
     stops: tuple[tuple[float, float, float], ...] = (),
     return_speed_mps: float | None = None,
     return_lateral_m: float = 0.0,
+    backups: tuple[tuple[float, float, float], ...] = (),
     **overrides: float,
 ) -> Cell:
     """A fresh-tier cell: scene, sensor and return mode read from ``name`` (the matrix's
@@ -251,6 +254,7 @@ def _fresh(
         stops=stops,
         return_speed_mps=return_speed_mps,
         return_lateral_m=return_lateral_m,
+        backups=backups,
         profiles=(SYMMETRIC, UNEVEN, OVERLONG),
     )
 
@@ -728,6 +732,7 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
         scene_overrides=cell.scene_overrides or None,
         mount_deg=cell.mount_deg,
         stops=cell.stops,
+        backups=cell.backups,
         progress=False,
         overwrite=True,
     )

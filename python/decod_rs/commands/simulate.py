@@ -88,6 +88,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "length, seconds standing still, e.g. out:0.5:20 (an inspection stop at a defect)",
     )
     p.add_argument(
+        "--backup",
+        dest="backups",
+        action="append",
+        default=[],
+        type=_backup,
+        metavar="LEG:FRACTION:METRES",
+        help="back up along a leg (repeatable): leg out or back, the fraction of the leg's "
+        "length, metres driven back the way it came and forward again, e.g. out:0.5:3 (an "
+        "operator looking again at a defect)",
+    )
+    p.add_argument(
         "--curve-radius",
         type=float,
         default=None,
@@ -130,17 +141,25 @@ def _mount(text: str) -> tuple[float, float]:
         ) from None
 
 
-def _stop(text: str) -> tuple[float, float, float]:
+def _leg_triple(text: str, option: str, last: str, example: str) -> tuple[float, float, float]:
     try:
-        leg, fraction, seconds = text.split(":")
+        leg, fraction, value = text.split(":")
         if leg not in ("out", "back"):
             raise ValueError
-        return (0.0 if leg == "out" else 1.0), float(fraction), float(seconds)
+        return (0.0 if leg == "out" else 1.0), float(fraction), float(value)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"--stop takes LEG:FRACTION:SECONDS with LEG out or back (e.g. out:0.5:20), "
+            f"{option} takes LEG:FRACTION:{last} with LEG out or back (e.g. {example}), "
             f"got {text!r}"
         ) from None
+
+
+def _stop(text: str) -> tuple[float, float, float]:
+    return _leg_triple(text, "--stop", "SECONDS", "out:0.5:20")
+
+
+def _backup(text: str) -> tuple[float, float, float]:
+    return _leg_triple(text, "--backup", "METRES", "out:0.5:3")
 
 
 def _scene_param(text: str) -> tuple[str, float]:
@@ -182,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
         mount_deg=args.mount,
         sensor_height_m=args.height,
         stops=args.stops,
+        backups=args.backups,
         curve_radius_m=args.curve_radius,
         odometry=args.odometry,
         livox=args.livox,
@@ -199,6 +219,9 @@ def run(args: argparse.Namespace) -> int:
     for leg, fraction, seconds in args.stops:
         where = "out" if leg == 0.0 else "back"
         print(f"stop           {seconds:g} s standing, {100 * fraction:g} % of the way {where}")
+    for leg, fraction, metres in args.backups:
+        where = "out" if leg == 0.0 else "back"
+        print(f"backup         {metres:g} m back and on, {100 * fraction:g} % of the way {where}")
     if args.curve_radius is not None:
         side = "left" if args.curve_radius > 0 else "right"
         print(f"corridor       curves with radius {args.curve_radius:g} m to the {side}")

@@ -82,6 +82,7 @@ class Simulation:
         stops: Sequence[tuple[float, float, float]] = (),
         curve_radius_m: float | None = None,
         sensor_height_m: float | None = None,
+        backups: Sequence[tuple[float, float, float]] = (),
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
         # The world (scene geometry) may come from another seed than the run (noise, drift,
@@ -104,6 +105,7 @@ class Simulation:
             stops,
             return_speed_mps,
             float(return_lateral_m),
+            backups,
         )
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
@@ -584,10 +586,11 @@ def _trajectory_spec(
     stops: Sequence[tuple[float, float, float]] = (),
     return_speed: float | None = None,
     return_lateral: float = 0.0,
+    backups: Sequence[tuple[float, float, float]] = (),
 ) -> TrajectorySpec:
     """The run's trajectory: the scene's ``defaults`` (:func:`defaults_for`) with the length,
     speed, return mode (None: the scene's), sensor mount, stops, return speed (None: the
-    outbound's) and return lane offset asked for."""
+    outbound's), return lane offset and back-ups asked for."""
     if not (np.isfinite(length) and length > 0):
         raise ValueError(f"length_m must be > 0, got {length}")
     roll, pitch = _mount(mount_deg)
@@ -608,6 +611,7 @@ def _trajectory_spec(
         stops=tuple((float(a), float(b), float(c)) for a, b, c in stops),
         return_speed_mps=None if return_speed is None else float(return_speed),
         return_lateral_m=return_lateral,
+        backups=tuple((float(a), float(b), float(c)) for a, b, c in backups),
     )
 
 
@@ -674,6 +678,7 @@ def simulate(
     stops: Sequence[tuple[float, float, float]] = (),
     curve_radius_m: float | None = None,
     sensor_height_m: float | None = None,
+    backups: Sequence[tuple[float, float, float]] = (),
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -701,6 +706,9 @@ def simulate(
     a vehicle that comes back in a tunnel's other lane.
     ``stops``: halts along the legs, ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return;
     :class:`TrajectorySpec`), as an inspection robot makes at defects.
+    ``backups``: ``(leg, fraction, metres)``: there the vehicle stops, drives ``metres`` back
+    the way it came and forward over them again before it goes on, as an operator does to
+    look again at a defect (:class:`TrajectorySpec`).
     ``curve_radius_m``: the corridor curves in the horizontal plane with this radius
     (positive to the left; :mod:`decod_rs.sim.bend`); None: straight.
     ``sensor_height_m``: the sensor's height above the lowest point of the section (a
@@ -738,6 +746,7 @@ def simulate(
         stops=stops,
         curve_radius_m=curve_radius_m,
         sensor_height_m=sensor_height_m,
+        backups=backups,
     )
     if overwrite:
         # Every argument checked (the Simulation refuses a bad one): only now is an earlier

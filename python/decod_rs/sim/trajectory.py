@@ -8,7 +8,10 @@ crawler that inspects slowly on the way out and comes back fast). ``stops`` make
 along a leg, as an inspection robot does at a defect: each
 ``(leg, fraction, seconds)`` (leg 0 outbound, 1 return) slows down over ``ramp_s`` to stand
 still about ``fraction`` of the way along that leg, stays for ``seconds`` and drives on
-(a time warp of the leg: the path and the wobble along it are unchanged).
+(a time warp of the leg: the path and the wobble along it are unchanged). ``backups`` make
+it stop, drive back some metres the way it came and forward over them again before it goes
+on, as an operator does to look again at a defect: each ``(leg, fraction, metres)`` a halt
+whose standing time is spent backing up (:func:`_backup_shape`).
 Lateral, vertical, roll, pitch and yaw wobble are functions of the travelled distance (a path
 that wanders in space; no wobble while standing still), so the IMU is quiet at rest.
 """
@@ -144,6 +147,11 @@ class TrajectorySpec:
     #: the outbound direction): a vehicle that comes back in the other lane of a tunnel. It
     #: changes lane over the first ``LANE_CHANGE_M`` of the return, heading along its path.
     return_lateral_m: float = 0.0
+    #: Back-ups along the legs: ``(leg, fraction, metres)``: about ``fraction`` of the way
+    #: along leg 0 or 1 the vehicle slows to a halt, drives ``metres`` back the way it came
+    #: and forward over them again (at up to the leg's speed), then drives on. Placed like a
+    #: stop; the metres must lie within the leg travelled so far.
+    backups: tuple[tuple[float, float, float], ...] = ()
 
     def leg_speed(self, leg: int) -> float:
         """The cruise speed of ``leg`` (0 outbound, 1 return), m/s."""
@@ -171,32 +179,61 @@ def _halted(t: F64, ramp: float, hold: float) -> F64:
     return slowing + stopped + resuming
 
 
-def _halts(
-    spec: TrajectorySpec, leg_s: tuple[float, float]
-) -> tuple[list[tuple[float, float]], ...]:
-    """Per leg, its stops as ``(elapsed time the slowing starts, seconds)`` in order; a stop
-    is refused unless it lies within the leg's cruise (the ramps at either end are the leg's
-    own start and stop) and a ramp of motion away from the leg's other stops (two halts
-    overlapping would drive the vehicle backwards)."""
-    legs: tuple[list[tuple[float, float]], ...] = ([], [])
+def _backup_shape(u: F64, metres: float) -> tuple[F64, F64]:
+    """A back-up ``u`` (0-1) of the way through its standing time: how far the vehicle is
+    behind the point it stopped at (a cosine out to ``metres`` and back, so it starts, turns
+    and ends at rest) and the path it has driven so far (``2 metres`` in all)."""
+    u = np.clip(u, 0.0, 1.0)
+    behind = 0.5 * metres * (1.0 - np.cos(2.0 * np.pi * u))
+    return behind, np.where(u < 0.5, behind, 2.0 * metres - behind)
+
+
+def _halt_entries(spec: TrajectorySpec) -> list[tuple[int, float, float, float, str]]:
+    """Every stop and back-up as ``(leg, fraction, seconds, metres backed up, label)``, a
+    back-up standing for ``pi metres / v`` (its peak speed is the leg's ``v``)."""
+    entries = []
     for stop in spec.stops:
         leg, fraction, hold = (float(v) for v in stop)
         if leg not in (0.0, 1.0) or not (np.isfinite(hold) and hold > 0.0):
             raise ValueError(f"stop {stop}: leg must be 0 or 1 and seconds > 0")
+        entries.append((int(leg), fraction, hold, 0.0, f"stop {stop}"))
+    for backup in spec.backups:
+        leg, fraction, metres = (float(v) for v in backup)
+        if leg not in (0.0, 1.0) or not (np.isfinite(metres) and metres > 0.0):
+            raise ValueError(f"backup {backup}: leg must be 0 or 1 and metres > 0")
+        if fraction * spec.length_m - metres < spec.leg_speed(int(leg)) * spec.ramp_s:
+            raise ValueError(
+                f"backup {backup}: {metres:g} m back from {fraction * spec.length_m:g} m along "
+                "the leg would pass its start"
+            )
+        hold = np.pi * metres / spec.leg_speed(int(leg))
+        entries.append((int(leg), fraction, hold, metres, f"backup {backup}"))
+    return entries
+
+
+def _halts(
+    spec: TrajectorySpec, leg_s: tuple[float, float]
+) -> tuple[list[tuple[float, float, float]], ...]:
+    """Per leg, its stops and back-ups as ``(elapsed time the slowing starts, seconds, metres
+    backed up)`` in order; a halt is refused unless it lies within the leg's cruise (the
+    ramps at either end are the leg's own start and stop) and a ramp of motion away from the
+    leg's other halts (two halts overlapping would drive the vehicle backwards)."""
+    legs: tuple[list[tuple[float, float, float]], ...] = ([], [])
+    for leg, fraction, hold, metres, label in _halt_entries(spec):
         # Motion time at which the vehicle is `fraction` along (cruise: d = v (tau - ramp/2)).
-        tau = fraction * spec.length_m / spec.leg_speed(int(leg)) + 0.5 * spec.ramp_s
-        if not (2.0 * spec.ramp_s <= tau <= leg_s[int(leg)] - 2.0 * spec.ramp_s):
-            raise ValueError(f"stop {stop}: fraction must lie within the leg's cruise")
-        legs[int(leg)].append((tau, hold))
-    out: tuple[list[tuple[float, float]], ...] = ([], [])
+        tau = fraction * spec.length_m / spec.leg_speed(leg) + 0.5 * spec.ramp_s
+        if not (2.0 * spec.ramp_s <= tau <= leg_s[leg] - 2.0 * spec.ramp_s):
+            raise ValueError(f"{label}: fraction must lie within the leg's cruise")
+        legs[leg].append((tau, hold, metres))
+    out: tuple[list[tuple[float, float, float]], ...] = ([], [])
     for leg, halts in enumerate(legs):
         lost, last = 0.0, -np.inf
-        for tau, hold in sorted(halts):
+        for tau, hold, metres in sorted(halts):
             if tau - last < spec.ramp_s:
                 raise ValueError(f"stops on leg {leg}: closer than one ramp of driving apart")
             # It slows down half a ramp of motion before the stop point, after the time
             # the earlier stops of the leg took.
-            out[leg].append((tau - 0.5 * spec.ramp_s + lost, hold))
+            out[leg].append((tau - 0.5 * spec.ramp_s + lost, hold, metres))
             lost += hold + spec.ramp_s
             last = tau
     return out
@@ -224,7 +261,7 @@ class Trajectory:
         self._halts = _halts(spec, self.leg_s)
         self.stop_s = spec.turn_s if spec.return_mode == "turn" else spec.pause_s
         out_s, back_s = (
-            motion + sum(h + spec.ramp_s for _, h in halts)
+            motion + sum(h + spec.ramp_s for _, h, _ in halts)
             for motion, halts in zip(self.leg_s, self._halts, strict=True)
         )
         self.t_far_arrive = spec.pre_s + out_s
@@ -262,20 +299,36 @@ class Trajectory:
         """Motion time of ``leg`` after ``elapsed`` seconds of it, its stops taken out."""
         tau = np.asarray(elapsed, dtype=np.float64).copy()
         ramp = self.spec.ramp_s
-        for start, hold in self._halts[leg]:
+        for start, hold, _ in self._halts[leg]:
             tau -= _halted(elapsed - start, ramp, hold)
         return tau
 
+    def _leg_parts(self, leg: int, t: F64) -> tuple[F64, F64, F64]:
+        """At times ``t``, the distance ``leg`` has covered without its back-ups, how far its
+        back-ups have it behind that, and the path they have driven."""
+        elapsed = np.asarray(t, dtype=np.float64) - (
+            self.spec.pre_s if leg == 0 else self.t_return_start
+        )
+        made = self._leg(leg, self._motion(leg, elapsed))
+        behind, driven = np.zeros_like(made), np.zeros_like(made)
+        for start, hold, metres in self._halts[leg]:
+            if metres > 0.0:
+                b, d = _backup_shape((elapsed - start - self.spec.ramp_s) / hold, metres)
+                behind, driven = behind + b, driven + d
+        return made, behind, driven
+
     def _legs(self, t: F64) -> tuple[F64, F64]:
-        """Distance covered on the outbound and on the return leg at times ``t``."""
-        out = self._leg(0, self._motion(0, t - self.spec.pre_s))
-        back = self._leg(1, self._motion(1, t - self.t_return_start))
-        return out, back
+        """How far along the outbound and the return leg the vehicle is at times ``t``."""
+        out, out_behind, _ = self._leg_parts(0, t)
+        back, back_behind, _ = self._leg_parts(1, t)
+        return out - out_behind, back - back_behind
 
     def travelled(self, t: F64) -> F64:
-        """Distance travelled along the axis since the start, metres (monotone)."""
-        out, back = self._legs(t)
-        return out + back
+        """Distance travelled along the axis since the start, metres (monotone: a back-up's
+        path counts both ways)."""
+        out, _, out_driven = self._leg_parts(0, t)
+        back, _, back_driven = self._leg_parts(1, t)
+        return out + out_driven + back + back_driven
 
     def axial(self, t: F64) -> F64:
         """Nominal axial position (world x) without wobble."""
