@@ -107,16 +107,17 @@ def test_quick_tier_and_filter() -> None:
 def test_the_fresh_tier_is_held_out_and_outside_the_full_tier() -> None:
     fresh = tier_cells("fresh")
     full = tier_cells("full")
-    assert len(fresh) == 18 and all(c.held_out for c in fresh)
+    assert len(fresh) == 20 and all(c.held_out for c in fresh)
     assert not {c.name for c in fresh} & {c.name for c in full}
-    # Each cell a size, spacing, speed, sensor mount, stops, water or return speed its scene
-    # does not have in the full tier (every full-tier sensor is level, every full-tier run
-    # drives through at one speed, every full-tier pipe is dry).
+    # Each cell a size, spacing, speed, sensor mount, stops, water, return speed, lane or
+    # back-up its scene does not have in the full tier (every full-tier sensor is level,
+    # every full-tier run drives straight through at one speed, every full-tier pipe is dry).
     assert all(
         c.mount_deg == (0.0, 0.0)
         and not c.stops
         and c.return_speed_mps is None
         and c.return_lateral_m == 0.0
+        and not c.backups
         for c in full
     )
     full_keys = {
@@ -132,10 +133,13 @@ def test_the_fresh_tier_is_held_out_and_outside_the_full_tier() -> None:
         keys |= {(c.scene, "return speed", back)} if back is not None else set()
         side = c.return_lateral_m
         keys |= {(c.scene, "return lateral", side)} if side else set()
+        keys |= {(c.scene, "backups", c.backups)} if c.backups else set()
         assert keys and not keys & full_keys, c.name
     assert [c.name for c in tier_cells("fresh", "d0.8")] == ["pe-spin16-reverse-s7-d0.8"]
     assert len(tier_cells("fresh", "water")) == 4
-    assert {c.return_speed_mps for c in tier_cells("fresh", "back")} == {0.9, 1.5}
+    faster = [c.return_speed_mps for c in tier_cells("fresh", "back") if not c.backups]
+    assert sorted(x or 0.0 for x in faster) == [0.9, 1.5]
+    assert [len(c.backups) for c in tier_cells("fresh", "backup")] == [2, 1]
     assert {c.return_lateral_m for c in tier_cells("fresh", "lane")} == {1.5, 1.2}
     assert all(c.profiles == (SYMMETRIC, UNEVEN, OVERLONG) for c in fresh)
 

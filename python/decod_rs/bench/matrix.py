@@ -273,7 +273,8 @@ def _fresh(
 #: came from seed 223) drive back faster than out, as a crawler that inspects on the way
 #: out does; the two after them (added with ``--return-lateral``, seed 229 showed the
 #: forward sensor in the arched horseshoe failing from the other lane) come back in a
-#: tunnel's other lane.
+#: tunnel's other lane. The last two (added with ``--backup``, after seed 233 showed chainage
+#: counting a back-up twice, first run on the code that fixed it) back up to look again.
 FRESH: tuple[Cell, ...] = (
     _fresh("pe-spin16-reverse-s7-d0.8", 30.0, "pe, diameter 0.8 m", radius_m=0.4),
     _fresh(
@@ -373,6 +374,18 @@ FRESH: tuple[Cell, ...] = (
         "horseshoe, the return 1.2 m to the side (the other lane)",
         speed_mps=1.0,
         return_lateral_m=1.2,
+    ),
+    _fresh(
+        "pe-avia-reverse-s7-backup",
+        30.0,
+        "pe, backs up 2 m 40 % of the way out and 1.5 m 60 % of the way back",
+        backups=((0.0, 0.4, 2.0), (1.0, 0.6, 1.5)),
+    ),
+    _fresh(
+        "horseshoe-spin16-turn-s7-backup",
+        40.0,
+        "horseshoe, backs up 5 m half-way out",
+        backups=((0.0, 0.5, 5.0),),
     ),
 )
 
