@@ -182,8 +182,8 @@ def test_a_crawler_that_backs_up_puts_its_joints_at_their_chainage(tmp_path: Pat
     # The operator backs the crawler up 3 m half-way out to look again at a defect, then
     # drives on (odometry 5 % short out, 15 % short back). The path past the back-up is 6 m
     # longer than the pipe: measured along it, every later joint of joints.csv came out
-    # 15-30 % long (held out, seed 233: the registry's median error 16.5 %, its worst 33 %;
-    # now 0.3 % and 0.4 %). Each loop-confirmed row, placed by its views' true positions at
+    # long by those 6 m (this log: the registry's median error 31.7 %; held out, seed 233,
+    # 16.5 % and now 0.3 %). Each loop-confirmed row, placed by its views' true positions at
     # a joint 1 m or more along, carries that joint's chainage: within 1 % for the median
     # row, within 3 % for every row (at the first joints, 1-2 m along, a view's own
     # detection error of 1-2 cm is 1-2 %).

@@ -4,13 +4,13 @@ cites a joint (beyond the paper).
 A robot's path is not the corridor: an operator backs up a few metres to look again at a
 defect and drives on, so the path's length past that point exceeds the distance along the
 corridor by twice the back-up, and the path passes the same joint three times. Measured along
-the path, every joint past a back-up of 3-6 m came out 15-30 % long (held out, seed 233:
-the registry's median error 15-21 %, a pipe and three tunnels). Chainage therefore runs
-along the path's *forward course*: from the start to the farthest point, only the positions
-that take the robot further than it has been, each at least :data:`MIN_STEP_M` beyond the
-last one kept and not back the way it came there. On a run driven straight
-through, the forward course is the path itself, thinned to :data:`MIN_STEP_M` (the wobble
-between samples adds a few millimetres in a hundred metres).
+the path, every joint past a back-up of 2-6 m came out long by twice the back-up (held
+out, seed 233, two pipes and two tunnels: the registry's median error 14-21 %). Chainage
+therefore runs along the path's *forward course*: from the start to the farthest point, only
+the positions that take the robot further than it has been, each at least
+:data:`MIN_STEP_M` beyond the last one kept and not back the way it came there. On a run
+driven straight through, the forward course is the path itself, thinned to
+:data:`MIN_STEP_M` (the wobble between samples adds a few millimetres in a hundred metres).
 """
 
 from __future__ import annotations
