@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from decod_rs._core import Landmark
-from decod_rs.chainage import MIN_STEP_M, outbound_course
+from decod_rs.chainage import MIN_STEP_M, outbound_course, revisits
 from decod_rs.evaluate import evaluate_run
 from decod_rs.joints import landmark_chainage
 from decod_rs.pipeline import run_log
@@ -228,3 +228,29 @@ def test_chainage_does_not_count_a_back_up_twice() -> None:
     assert float(np.sum(np.linalg.norm(np.diff(course, axis=0), axis=1))) == pytest.approx(
         course[-1, 0] - course[0, 0], abs=0.01
     )
+
+
+def test_revisits_mark_the_ground_driven_again_and_nothing_else() -> None:
+    # Out to 36 m, back to 6 m, out to 40 m (a section driven twice), with a stop at 20 m
+    # whose positions jitter by 3 mm, and the simulator's wobble.
+    spec = TrajectorySpec(
+        x_start_m=0.0,
+        length_m=40.0,
+        speed_mps=1.0,
+        return_mode="reverse",
+        backups=((0.0, 0.9, 30.0),),
+        stops=((0.0, 0.5, 5.0),),
+    )
+    traj = Trajectory(spec, np.random.default_rng(5))
+    stamps = np.arange(0.0, traj.t_far_arrive, 0.1)
+    x = traj.poses(stamps)[:, :3, 3]
+    rng = np.random.default_rng(6)
+    x = x + rng.normal(0.0, 0.003, x.shape)
+    again = revisits(x, 0.1)
+    front = np.maximum.accumulate(x[:, 0])
+    # Exactly the positions 10 cm or more behind the farthest point reached so far (to
+    # within the jitter): the 30 m back and the 30 m forward again, not the stop.
+    behind = front - x[:, 0]
+    assert not np.any(again & (behind < 0.08)) and np.all(again[behind > 0.12])
+    assert 0.4 * again.size < np.count_nonzero(again) < 0.7 * again.size
+    assert not np.any(revisits(x[x[:, 0] < 30.0][:200], 0.1))

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["AHEAD_COS", "MIN_STEP_M", "forward_course", "outbound_course"]
+__all__ = ["AHEAD_COS", "MIN_STEP_M", "forward_course", "outbound_course", "revisits"]
 
 #: The forward course keeps a position at least this far (m) from the last one kept: a step
 #: long enough to give the direction of travel against a corrected trajectory's centimetre of
@@ -34,6 +34,27 @@ MIN_STEP_M = 0.05
 AHEAD_COS = 0.5
 
 
+def _walk(p: FloatArray) -> tuple[list[int], FloatArray]:
+    """The forward course's indices into ``p`` (N, 3) and, per position, how far it lies
+    behind the course's front (the last position kept so far; 0 where it is kept, or ahead
+    of the front but within :data:`MIN_STEP_M` of it)."""
+    far = p[int(np.argmax(np.linalg.norm(p - p[0], axis=1)))] - p[0]
+    direction = far / max(float(np.linalg.norm(far)), 1e-12)
+    kept = [0]
+    last = p[0]
+    behind = np.zeros(p.shape[0])
+    for i in range(1, p.shape[0]):
+        step = p[i] - last
+        length = float(np.linalg.norm(step))
+        along = float(step @ direction)
+        if length >= MIN_STEP_M and along > -AHEAD_COS * length:
+            kept.append(i)
+            direction, last = step / length, p[i]
+        elif along < 0.0:
+            behind[i] = length
+    return kept, behind
+
+
 def forward_course(positions: FloatArray) -> FloatArray:
     """The positions (P, 3) of ``positions`` (N, 3, in time order) that take the robot
     further along (module doc): the first, then each one at least :data:`MIN_STEP_M` from
@@ -43,18 +64,20 @@ def forward_course(positions: FloatArray) -> FloatArray:
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 2 or p.shape[0] < 2:
         return p.reshape(-1, 3)
-    far = p[int(np.argmax(np.linalg.norm(p - p[0], axis=1)))] - p[0]
-    direction = far / max(float(np.linalg.norm(far)), 1e-12)
-    kept = [0]
-    last = p[0]
-    for i in range(1, p.shape[0]):
-        step = p[i] - last
-        length = float(np.linalg.norm(step))
-        if length < MIN_STEP_M or float(step @ direction) <= -AHEAD_COS * length:
-            continue
-        kept.append(i)
-        direction, last = step / length, p[i]
+    kept, _ = _walk(p)
     return p[kept]
+
+
+def revisits(positions: FloatArray, behind_m: float) -> NDArray[np.bool_]:
+    """Per position of ``positions`` (N, 3, in time order): whether the robot is there on
+    ground it has covered before, at least ``behind_m`` behind the front of its forward
+    course (:func:`forward_course`): backing up, or driving over the backed-up stretch
+    again until it passes the front. A robot standing still, or creeping, never is."""
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or p.shape[0] < 2:
+        return np.zeros(p.shape[0] if p.ndim == 2 else 0, dtype=bool)
+    _, behind = _walk(p)
+    return np.asarray(behind >= behind_m, dtype=bool)
 
 
 def outbound_course(positions: FloatArray) -> FloatArray:

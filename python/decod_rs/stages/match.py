@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.chainage import revisits
 from decod_rs.config import Config
 from decod_rs.disambiguation import CorrectedFrame, near_loops, resolve_with_prior
 from decod_rs.matching import LandmarkDatabase, PairMemo
@@ -66,10 +67,40 @@ class Matched:
     by_prior: frozenset[int] = frozenset()
     pairs: PairMemo | None = None
     tracked: list[bool] | None = None
+    #: Views left out of the database: taken on ground covered before (:func:`revisit_views`).
+    revisited: int = 0
 
     @property
     def database(self) -> int:
         return len(self.db_order)
+
+
+def revisit_views(
+    landmarks: list[Landmark],
+    scans: tuple[FloatArray, FloatArray],
+    split: float | None,
+    behind_m: float,
+) -> NDArray[np.bool_]:
+    """Per landmark, whether its anchor lies on ground its pass covered before
+    (:func:`decod_rs.chainage.revisits` on the odometry, ``behind_m`` behind the front):
+    the robot backed up there or drives over a backed-up stretch again. The views of one
+    boundary from two traversals of a pass are two tracks (more than
+    ``matching.min_time_separation_s`` apart); in the database they were each other's
+    runner-up, so queries of the stretch came out ``not_unique`` and near ties made the
+    corridor look aliased (held out, seed 239: a 0.6 m pipe driven out to 36 m, back to 6 m
+    and out to 40 m closed no loop). The first traversal's views stand for the stretch."""
+    stamps, poses = scans
+    out = np.zeros(len(landmarks), dtype=bool)
+    if stamps.size < 2 or not landmarks:
+        return out
+    first = np.ones(stamps.size, dtype=bool) if split is None else stamps <= split
+    again = np.zeros(stamps.size, dtype=bool)
+    again[first] = revisits(poses[first, :3, 3], behind_m)
+    anchor = np.array([lm.submap_stamp for lm in landmarks], dtype=np.float64)
+    nearest = np.clip(np.searchsorted(stamps, anchor), 0, stamps.size - 1)
+    before = np.clip(nearest - 1, 0, stamps.size - 1)
+    closer = np.abs(stamps[before] - anchor) < np.abs(stamps[nearest] - anchor)
+    return np.asarray(again[np.where(closer, before, nearest)], dtype=bool)
 
 
 def query_database(
@@ -80,13 +111,16 @@ def query_database(
     mode: str,
     split: float | None,
     pairs: PairMemo,
+    revisited: NDArray[np.bool_] | None = None,
 ) -> tuple[list[QueryResult], str, list[int]]:
     """Queries and their top-1 results, the mode used, and the landmark behind each
     database index. Every view goes into the database under its track (physical boundary)
     id, placed at ``where`` (origins and axes, (N, 3) each, in the odometry frame: the
-    coarse stage's neighbours and the heading prior); batch mode takes the landmarks as the
+    coarse stage's neighbours and the heading prior), but those ``revisited`` marks
+    (:func:`revisit_views`), which still query it; batch mode takes the landmarks as the
     track links prepared them (``pairs.views``)."""
     origins, axes = where
+    again = np.zeros(len(landmarks), dtype=bool) if revisited is None else revisited
     db = LandmarkDatabase(cfg)
     if mode == "auto":
         mode = "batch" if split is not None else "online"
@@ -95,7 +129,9 @@ def query_database(
             raise ValueError(
                 "--mode batch: the trajectory has no return leg to query with (use --mode online)"
             )
-        outbound = [k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split]
+        outbound = [
+            k for k, lm in enumerate(landmarks) if lm.submap_stamp <= split and not again[k]
+        ]
         views = pairs.views
         ids = [int(tracks[k]) for k in outbound]
         db.extend_prepared(views, outbound, ids, origins[outbound], axes[outbound])
@@ -106,10 +142,13 @@ def query_database(
         return results, mode, outbound
     results = []
     order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
+    added = []
     for k in order:
         results.append(db.query(landmarks[k], direction=axes[k]))
-        db.add(landmarks[k], int(tracks[k]), origins[k], axes[k])
-    return results, mode, order
+        if not again[k]:
+            db.add(landmarks[k], int(tracks[k]), origins[k], axes[k])
+            added.append(k)
+    return results, mode, added
 
 
 def match_and_select(
@@ -141,15 +180,27 @@ def match_and_select(
         split_stamp=split,
     )
     where = (world_origins(ex.landmarks, anchors), world_axes(ex.landmarks, anchors))
+    again = revisit_views(
+        ex.landmarks, (scan_stamps, scan_odom), split, float(m.duplicate_radius_m)
+    )
     results, used_mode, db_order = query_database(
-        ex.landmarks, tracks, where, cfg, mode, split, pairs
+        ex.landmarks, tracks, where, cfg, mode, split, pairs, again
     )
     pairs.release_views()
     views = views_per_landmark(tracks)
     tracked = tracked_loops(results, ex.landmarks, views, views[db_order])
     keep, reasons = select_loops(results, anchors, scan_stamps, scan_odom, m, tracked=tracked)
     return Matched(
-        split, tracks, results, used_mode, db_order, keep, reasons, pairs=pairs, tracked=tracked
+        split,
+        tracks,
+        results,
+        used_mode,
+        db_order,
+        keep,
+        reasons,
+        pairs=pairs,
+        tracked=tracked,
+        revisited=int(np.count_nonzero(again)),
     )
 
 

@@ -250,6 +250,7 @@ def run_report(
             "tracks": int(np.unique(matched.tracks).size),
             "joints": len(joints),
             "database": matched.database,
+            "views_on_revisited_ground": matched.revisited,
             "queries": summary.queries,
             "accepted": summary.accepted,
             "accepted_by_position_prior": len(matched.by_prior),
