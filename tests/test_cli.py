@@ -78,3 +78,14 @@ def test_the_summary_names_windows_closed_by_travel_and_end_faces(
     print_summary(summary)
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("submaps"))
     assert "(2 cut before an end face in view; 5 closed by their travel" in line
+    # The matching line says how many views of ground driven again stayed out of the
+    # database (none on a log driven straight through: nothing said).
+    print_summary(summary)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("matching"))
+    assert line.split() == ["matching", "batch", "mode,", "5", "queries,", "2", "accepted"]
+    summary.revisited_views = 7
+    print_summary(summary)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("matching"))
+    assert line.endswith(
+        "2 accepted; 7 views on ground driven again query but stay out of the database"
+    )

@@ -110,9 +110,15 @@ def print_summary(summary: RunSummary) -> None:
     print(f"submaps        {summary.submaps}, landmarks {summary.landmarks}{ends}")
     rej = ", ".join(f"{k} {v}" for k, v in sorted(summary.rejections.items())) or "none"
     print(f"rejected       {rej}")
+    again = summary.revisited_views
+    revisit = (
+        f"; {again} views on ground driven again query but stay out of the database"
+        if again
+        else ""
+    )
     print(
         f"matching       {summary.mode} mode, {summary.queries} queries, "
-        f"{summary.accepted} accepted"
+        f"{summary.accepted} accepted{revisit}"
     )
     print(f"time           {stages}; {summary.realtime_factor:.0f}x real time")
     print(f"output         {summary.out_dir}")

@@ -57,6 +57,9 @@ class RunSummary:
     end_face_submaps: int = 0
     #: Windows ``submap.max_travel_m`` closed (``report.json`` ``counts``).
     travel_submaps: int = 0
+    #: Views kept out of the database, taken on ground their pass covered before
+    #: (``report.json`` ``counts``, :func:`decod_rs.stages.match.revisit_views`).
+    revisited_views: int = 0
     #: Clouds before the odometry's first pose or after its last (``ingest``), not used.
     clouds_outside_odometry: int = 0
 
@@ -199,6 +202,7 @@ def run_summary(
         rejections=ex.rejections,
         end_face_submaps=ex.end_face_submaps,
         travel_submaps=ex.travel_submaps,
+        revisited_views=matched.revisited,
         clouds_outside_odometry=len(processor.skipped_outside_odometry),
     )
 
@@ -250,7 +254,7 @@ def run_report(
             "tracks": int(np.unique(matched.tracks).size),
             "joints": len(joints),
             "database": matched.database,
-            "views_on_revisited_ground": matched.revisited,
+            "views_on_revisited_ground": summary.revisited_views,
             "queries": summary.queries,
             "accepted": summary.accepted,
             "accepted_by_position_prior": len(matched.by_prior),
