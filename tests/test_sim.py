@@ -816,6 +816,26 @@ def test_cli_backup(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "would pass its start" in capsys.readouterr().err
 
 
+def test_cli_standstill(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["simulate", "pe", "--out", str(tmp_path), "--length", "3", "--speed", "0.5"]
+    args += ["--rays", "100", "--drift", "none", "--quiet"]
+    assert cli_main([*args, "--standstill", "6,4"]) == 0
+    doc = json.loads((tmp_path / "joints.json").read_text())
+    assert (doc["trajectory"]["pre_s"], doc["trajectory"]["post_s"]) == (6.0, 4.0)
+    stamps, poses = read_tum(tmp_path / "gt.tum")
+    t, x = stamps - stamps[0], poses[:, 0, 3] - poses[0, 0, 3]
+    # Standing for the 6 s asked before moving off and the 4 s after coming back.
+    assert np.all(x[t < 6.0] == 0.0) and abs(x[t > 6.05][0]) > 0.0
+    still_end = t[np.abs(x - x[-1]) < 1e-12]
+    assert t[-1] - still_end[np.argmax(np.diff(still_end, prepend=-1.0) > 0.15)] >= 3.9
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as refused:
+        cli_main([*args, "--standstill", "60", "--force"])
+    assert refused.value.code == 2 and "START,END" in capsys.readouterr().err
+    assert cli_main([*args, "--standstill=-1,0", "--force"]) == 2
+    assert "standstill_s" in capsys.readouterr().err
+
+
 def test_cli_stop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     args = ["simulate", "pe", "--out", str(tmp_path), "--length", "4", "--speed", "0.5"]
     args += ["--rays", "100", "--drift", "none", "--quiet"]

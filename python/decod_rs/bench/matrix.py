@@ -171,6 +171,9 @@ class Cell:
     return_lateral_m: float = 0.0
     #: Back-ups along the legs, (leg, fraction, metres) (``decod simulate --backup``).
     backups: tuple[tuple[float, float, float], ...] = ()
+    #: Seconds standing still before moving off and after coming back (``decod simulate
+    #: --standstill``); None: the simulator's 2 and 1.
+    standstill_s: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -746,6 +749,7 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
         mount_deg=cell.mount_deg,
         stops=cell.stops,
         backups=cell.backups,
+        standstill_s=cell.standstill_s,
         progress=False,
         overwrite=True,
     )

@@ -99,6 +99,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "operator looking again at a defect)",
     )
     p.add_argument(
+        "--standstill",
+        type=_standstill,
+        default=None,
+        metavar="START,END",
+        help="seconds standing still before moving off and after coming back, e.g. 60,30 (a "
+        "recording started while the operator gets ready); default 2,1",
+    )
+    p.add_argument(
         "--curve-radius",
         type=float,
         default=None,
@@ -162,6 +170,16 @@ def _backup(text: str) -> tuple[float, float, float]:
     return _leg_triple(text, "--backup", "METRES", "out:0.5:3")
 
 
+def _standstill(text: str) -> tuple[float, float]:
+    start, _, end = text.partition(",")
+    try:
+        return float(start), float(end)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--standstill takes START,END in seconds (e.g. 60,30), got {text!r}"
+        ) from None
+
+
 def _scene_param(text: str) -> tuple[str, float]:
     key, sep, value = text.partition("=")
     try:
@@ -202,6 +220,7 @@ def run(args: argparse.Namespace) -> int:
         sensor_height_m=args.height,
         stops=args.stops,
         backups=args.backups,
+        standstill_s=args.standstill,
         curve_radius_m=args.curve_radius,
         odometry=args.odometry,
         livox=args.livox,

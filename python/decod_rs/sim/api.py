@@ -83,6 +83,7 @@ class Simulation:
         curve_radius_m: float | None = None,
         sensor_height_m: float | None = None,
         backups: Sequence[tuple[float, float, float]] = (),
+        standstill_s: tuple[float, float] | None = None,
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
         # The world (scene geometry) may come from another seed than the run (noise, drift,
@@ -106,6 +107,7 @@ class Simulation:
             return_speed_mps,
             float(return_lateral_m),
             backups,
+            standstill_s,
         )
         self.traj = Trajectory(self.traj_spec, np.random.default_rng([self.seed, 2]))
         x_max = defaults.x_start_m + length + defaults.beyond_m
@@ -587,13 +589,18 @@ def _trajectory_spec(
     return_speed: float | None = None,
     return_lateral: float = 0.0,
     backups: Sequence[tuple[float, float, float]] = (),
+    standstill_s: tuple[float, float] | None = None,
 ) -> TrajectorySpec:
     """The run's trajectory: the scene's ``defaults`` (:func:`defaults_for`) with the length,
     speed, return mode (None: the scene's), sensor mount, stops, return speed (None: the
-    outbound's), return lane offset and back-ups asked for."""
+    outbound's), return lane offset, back-ups and standing still before and after (None:
+    2 s and 1 s) asked for."""
     if not (np.isfinite(length) and length > 0):
         raise ValueError(f"length_m must be > 0, got {length}")
     roll, pitch = _mount(mount_deg)
+    pre, post = (2.0, 1.0) if standstill_s is None else (float(v) for v in standstill_s)
+    if not (np.isfinite(pre) and np.isfinite(post) and pre >= 0.0 and post >= 0.0):
+        raise ValueError(f"standstill_s: {standstill_s} must be two finite seconds >= 0")
     return TrajectorySpec(
         x_start_m=defaults.x_start_m,
         length_m=length,
@@ -612,6 +619,8 @@ def _trajectory_spec(
         return_speed_mps=None if return_speed is None else float(return_speed),
         return_lateral_m=return_lateral,
         backups=tuple((float(a), float(b), float(c)) for a, b, c in backups),
+        pre_s=pre,
+        post_s=post,
     )
 
 
@@ -679,6 +688,7 @@ def simulate(
     curve_radius_m: float | None = None,
     sensor_height_m: float | None = None,
     backups: Sequence[tuple[float, float, float]] = (),
+    standstill_s: tuple[float, float] | None = None,
     odometry: str = "drift",
     livox: bool = False,
     ros1: bool = False,
@@ -708,7 +718,9 @@ def simulate(
     :class:`TrajectorySpec`), as an inspection robot makes at defects.
     ``backups``: ``(leg, fraction, metres)``: there the vehicle stops, drives ``metres`` back
     the way it came and forward over them again before it goes on, as an operator does to
-    look again at a defect (:class:`TrajectorySpec`).
+    look again at a defect (:class:`TrajectorySpec`). ``standstill_s``: seconds standing
+    still before moving off and after coming back (None: 2 and 1), as a log whose recording
+    starts while the operator gets ready.
     ``curve_radius_m``: the corridor curves in the horizontal plane with this radius
     (positive to the left; :mod:`decod_rs.sim.bend`); None: straight.
     ``sensor_height_m``: the sensor's height above the lowest point of the section (a
@@ -747,6 +759,7 @@ def simulate(
         curve_radius_m=curve_radius_m,
         sensor_height_m=sensor_height_m,
         backups=backups,
+        standstill_s=standstill_s,
     )
     if overwrite:
         # Every argument checked (the Simulation refuses a bad one): only now is an earlier
