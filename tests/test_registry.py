@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from decod_rs.joints import joint_registry
+from decod_rs.joints import joint_registry, standing_poses
 
 
 def _views(chainages: list[float]) -> list[Any]:
@@ -57,3 +57,26 @@ def test_nearby_features_do_not_chain_into_one_row() -> None:
     rows = [(j.chainage_m, j.views) for j in joints]
     assert rows == [(10.375, 2), (11.0, 4), (11.625, 2)]
     assert all(j.passes == 1 for j in joints)
+
+
+def test_a_robot_standing_still_counts_once_in_a_joints_chainage() -> None:
+    # A joint at 3.5 m. The robot stands 60 s at the start (one submap a second, the
+    # corrected positions within a millimetre), and each of those views puts the joint 15 cm
+    # short (one detection error, one pose); then it drives at 0.5 m/s, an anchor a second,
+    # and five views from five places put it within 2 cm.
+    rest = np.zeros((60, 3)) + np.random.default_rng(0).normal(0.0, 0.0005, (60, 3))
+    drive = np.array([[0.5 * (k + 1), 0.0, 0.0] for k in range(5)])
+    positions = np.vstack([rest, drive])
+    scan_stamps = np.arange(positions.shape[0], dtype=np.float64)
+    corrected = np.repeat(np.eye(4)[None], positions.shape[0], axis=0)
+    corrected[:, :3, 3] = positions
+    chain = np.concatenate([np.full(60, 3.35), [3.49, 3.51, 3.50, 3.52, 3.48]])
+    lms = _views(chain.tolist())  # stamps 0..64: each view from the anchor at its stamp
+    poses = standing_poses(scan_stamps, scan_stamps, corrected)
+    assert np.all(poses[:60] == 0) and poses[60:].tolist() == [1, 2, 3, 4, 5]
+    tracks = np.zeros(chain.size, dtype=np.int64)
+    counted, _ = joint_registry(lms, tracks, [], chain, None, 0.3, poses)
+    every_view, _ = joint_registry(lms, tracks, [], chain, None, 0.3)
+    # One vote for the standing pose: the median of 3.35, 3.48, ..., 3.52 is 3.495.
+    assert counted[0].chainage_m == pytest.approx(3.495) and counted[0].views == 65
+    assert every_view[0].chainage_m == pytest.approx(3.35)

@@ -18,7 +18,13 @@ from decod_rs.aliasing import aliasing
 from decod_rs.config import Config
 from decod_rs.graph import CorrectionResult, LoopConstraint
 from decod_rs.graph_export import write_g2o, write_graph_json
-from decod_rs.joints import Joint, joint_registry, landmark_chainage, write_joints_csv
+from decod_rs.joints import (
+    Joint,
+    joint_registry,
+    landmark_chainage,
+    standing_poses,
+    write_joints_csv,
+)
 from decod_rs.reinspection import Reinspection, write_run_survey
 from decod_rs.run_files import (
     LandmarkTable,
@@ -151,7 +157,12 @@ def write_outputs(
         )
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
     same = float(cfg.matching.duplicate_radius_m)
-    joints, joint_of = joint_registry(lms, matched.tracks, kept, chainage, matched.split, same)
+    poses = standing_poses(
+        np.array([lm.submap_stamp for lm in lms], dtype=np.float64), scan_stamps, correction.poses
+    )
+    joints, joint_of = joint_registry(
+        lms, matched.tracks, kept, chainage, matched.split, same, poses
+    )
     survey_ids = None if stage is None else stage.survey_ids(joint_of)
     write_joints_csv(out / "joints.csv", joints, survey_ids)
     write_run_survey(
