@@ -15,6 +15,7 @@ from decod_rs.cross_axis import CrossAxis, cross_axis
 from decod_rs.disambiguation import CorrectedFrame
 from decod_rs.end_faces import face_constraints
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
+from decod_rs.loop_scale import stitch_with_loop_scales
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
 from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
 from decod_rs.selection import effective_db_origin, path_along
@@ -157,7 +158,9 @@ def optimise(
     scan odometry the graph started from, and the trajectory to stitch rebuilt submaps on
     when it differs from the corrected one (None otherwise): without a loop, a pass whose
     scale was measured but that is not rescaled alone in the output (it would move the other
-    pass) is still rescaled for stitching, where only its own geometry counts."""
+    pass) is still rescaled for stitching, where only its own geometry counts; with loops, a
+    pass whose tracks did not measure its scale is stitched beyond its loops at the scale
+    they measure (:mod:`decod_rs.loop_scale`)."""
     anchor_stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
 
     def graph(tied: bool) -> tuple[CorrectionResult, ScaleEstimate | None, FloatArray]:
@@ -193,6 +196,11 @@ def optimise(
     if not tied and scale is not None and not _rescaled(scale):
         alone, alone_scale, _ = graph(True)
         stitch = alone.poses if _rescaled(alone_scale) else None
+    elif tied and scale is not None:
+        measured = [bool(p["rescaled"]) for p in scale.passes]
+        stitch = stitch_with_loop_scales(
+            scans[0], start, correction.poses, anchor_stamps, constraints, split, measured
+        )
     return correction, scale, start, stitch
 
 
