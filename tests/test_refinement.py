@@ -163,35 +163,36 @@ def test_a_rebuilt_round_tracks_boundaries_in_the_corrected_frame(tmp_path: Path
     assert result["loops"]["coarse"]["false_positives"] == 0
 
 
-def test_a_second_rebuild_takes_the_rib_pattern_out_of_the_joint_registry(
+def test_the_rebuilt_submaps_take_the_rib_pattern_out_of_the_joint_registry(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # A ribbed PE pipe (ribs every 3.5 cm, 1.2 mm high) seen by 16 beams, the return's
     # odometry 15 % short. Stitched 15 % short, a submap's ribs from different scans fall
     # out of step and the profile shows steps the detector takes for boundaries. The first
-    # round closes too few loops to measure the return's scale, so the first rebuild is
-    # stitched on a trajectory still about as short as the odometry; its correction then
-    # measures the scale, and only submaps stitched on *that* are clean. Seed 25 is new to
-    # this rule; with one rebuild this log gave 0 loops and 87 registry rows (31 of them
-    # seen more than once, 25 of those more than 0.1 m from any coupler); with two, 8 loops
-    # and 10 rows, every row seen more than once at a coupler.
+    # round closes too few loops for the tracks to measure the return's scale. Seed 25 is
+    # new to this rule; with one rebuild stitched on a trajectory still about as short as
+    # the odometry this log gave 0 loops and 87 registry rows (31 of them seen more than
+    # once, 25 of those more than 0.1 m from any coupler); a second rebuild, on that
+    # rebuild's correction, took it to 8 loops and 10 rows. Since the first rebuild is
+    # stitched beyond the first round's loops at the scale they measure
+    # (decod_rs.loop_scale), one rebuild does it: 5 -> 17 loops, both passes measured.
     import csv
     import json
 
     from decod_rs.evaluate import evaluate_run
 
     sim, out, report = _uneven_run(tmp_path, "pe", 25, "spin16", "turn", 0.3)
-    rounds = report["rebuild"]["rounds"]
-    assert report["rebuild"]["rebuilds"] == 2 and all(r["kept"] for r in rounds), rounds
+    rounds = [r for r in report["rebuild"]["rounds"] if r["rebuilt"]]
+    assert report["rebuild"]["rebuilds"] >= 1 and all(r["kept"] for r in rounds), rounds
     # decod run's summary says so, round by round, with the loops before and after.
     from decod_rs.commands.run import print_rebuild, read_report
 
     print_rebuild(read_report(out))
     line = capsys.readouterr().out.strip()
     assert line.startswith("rebuilt        round 1 (the correction moves a submap's travel by ")
-    (first, second) = [(r["loops_first_and_rebuilt"], r["kept"]) for r in rounds]
-    assert f"loops {first[0][0]} -> {first[0][1]}, kept; round 2 (" in line, line
-    assert line.endswith(f"loops {second[0][0]} -> {second[0][1]}, kept"), line
+    for k, r in enumerate(rounds, start=1):
+        before, after = r["loops_first_and_rebuilt"]
+        assert f"round {k} (" in line and f"loops {before} -> {after}, kept" in line, line
     result, _ = evaluate_run(out, sim / "gt.tum", sim / "joints.json")
     fine, coarse = result["loops"]["fine"], result["loops"]["coarse"]
     assert fine["accepted"] >= 3 and fine["false_positives"] == 0, fine
