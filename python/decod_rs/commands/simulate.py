@@ -139,14 +139,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _mount(text: str) -> tuple[float, float]:
-    roll, _, pitch = text.partition(",")
+def _pair(text: str, option: str, names: str, example: str) -> tuple[float, float]:
+    first, _, second = text.partition(",")
     try:
-        return float(roll), float(pitch)
+        return float(first), float(second)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"--mount takes ROLL,PITCH in degrees (e.g. 0,20), got {text!r}"
+            f"{option} takes {names} (e.g. {example}), got {text!r}"
         ) from None
+
+
+def _mount(text: str) -> tuple[float, float]:
+    return _pair(text, "--mount", "ROLL,PITCH in degrees", "0,20")
 
 
 def _leg_triple(text: str, option: str, last: str, example: str) -> tuple[float, float, float]:
@@ -171,13 +175,7 @@ def _backup(text: str) -> tuple[float, float, float]:
 
 
 def _standstill(text: str) -> tuple[float, float]:
-    start, _, end = text.partition(",")
-    try:
-        return float(start), float(end)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--standstill takes START,END in seconds (e.g. 60,30), got {text!r}"
-        ) from None
+    return _pair(text, "--standstill", "START,END in seconds", "60,30")
 
 
 def _scene_param(text: str) -> tuple[str, float]:
