@@ -46,13 +46,7 @@ from decod_rs.tum import interpolate_poses
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["Reinspection", "outbound_path", "reinspect", "write_run_survey"]
-
-
-def outbound_path(poses: FloatArray) -> FloatArray:
-    """The positions (P, 3) from the start to the farthest point that take the robot further
-    along (:func:`decod_rs.chainage.outbound_course`): what chainage runs along."""
-    return outbound_course(poses[:, :3, 3])
+__all__ = ["Reinspection", "reinspect", "write_run_survey"]
 
 
 def write_run_survey(
@@ -73,7 +67,7 @@ def write_run_survey(
         landmarks,
         joint_of,
         (anchor_stamps, anchors),
-        outbound_path(scans[1]),
+        outbound_course(scans[1][:, :3, 3]),
         {j.joint_id: j.chainage_m for j in joints},
         cfg,
     )

@@ -145,21 +145,16 @@ def write_outputs(
         table = stage.loop_rows(table, loop_table(c.results, c.keep, c.reasons))
     write_loops_csv(out / "loops.csv", table)
     lms = ex.landmarks
+    stamps = np.array([lm.submap_stamp for lm in lms], dtype=np.float64)
+    origins = np.array([lm.origin for lm in lms], dtype=np.float64).reshape(-1, 3)
+    axes = np.array([lm.axis for lm in lms], dtype=np.float64).reshape(-1, 3)
     if stage is not None and stage.placed:
         chainage = stage.chainage(lms, scan_stamps, correction.poses)
     else:
-        chainage = landmark_chainage(
-            np.array([lm.submap_stamp for lm in lms]),
-            np.array([lm.origin for lm in lms]).reshape(-1, 3),
-            np.array([lm.axis for lm in lms]).reshape(-1, 3),
-            scan_stamps,
-            correction.poses,
-        )
+        chainage = landmark_chainage(stamps, origins, axes, scan_stamps, correction.poses)
     kept = [r for r, ok in zip(matched.results, matched.keep, strict=True) if ok]
     same = float(cfg.matching.duplicate_radius_m)
-    poses = standing_poses(
-        np.array([lm.submap_stamp for lm in lms], dtype=np.float64), scan_stamps, correction.poses
-    )
+    poses = standing_poses(stamps, scan_stamps, correction.poses)
     joints, joint_of = joint_registry(
         lms, matched.tracks, kept, chainage, matched.split, same, poses
     )
@@ -174,9 +169,9 @@ def write_outputs(
     write_landmarks_csv(
         out / "landmarks.csv",
         LandmarkTable(
-            stamp=np.array([lm.submap_stamp for lm in lms], dtype=np.float64),
-            origin=np.array([lm.origin for lm in lms], dtype=np.float64).reshape(-1, 3),
-            axis=np.array([lm.axis for lm in lms], dtype=np.float64).reshape(-1, 3),
+            stamp=stamps,
+            origin=origins,
+            axis=axes,
             radius_m=np.array([lm.radius_m for lm in lms], dtype=np.float64),
             chainage_m=chainage,
             track_id=matched.tracks,
