@@ -20,12 +20,13 @@ def _views(chainages: list[float]) -> list[Any]:
     ]
 
 
-def _loop(q: Any, d: Any) -> Any:
+def _loop(q: Any, d: Any, dz_m: float = 0.0) -> Any:
     return SimpleNamespace(
         query_stamp=q.submap_stamp,
         query_origin=q.origin,
         candidate_stamp=d.submap_stamp,
         candidate_origin=d.origin,
+        dz_m=dz_m,
     )
 
 
@@ -45,6 +46,30 @@ def test_unlinked_tracks_of_one_joint_become_one_row() -> None:
     # Radius 0: one row per loop-joined group, as the tracks left them.
     alone, _ = joint_registry(lms, tracks, [_loop(lms[2], lms[0])], chain, 50.0, 0.0)
     assert len(alone) == 4
+
+
+def test_a_loop_to_the_next_ring_does_not_merge_two_rings() -> None:
+    # Rings at 9.5 and 11.0 m, each tracked on both passes (tracks 0, 1 outbound; 2, 3
+    # return). Loops tie each return track to its outbound one, and one more ties the return
+    # view of the 9.5 m ring to the 11.0 m ring's with the verifier's axial offset of 1.16 m
+    # (the patches overlap the next ring: a right loop, but between two boundaries).
+    chain = np.array([9.50, 9.51, 10.99, 11.00, 9.49, 9.52, 11.01, 10.98])
+    tracks = np.array([0, 0, 1, 1, 2, 2, 3, 3])
+    lms = _views(chain.tolist())
+    loops = [_loop(lms[4], lms[0]), _loop(lms[6], lms[2]), _loop(lms[5], lms[3], 1.16)]
+    joints, joint_of = joint_registry(lms, tracks, loops, chain, 3.5, 0.4)
+    assert [round(j.chainage_m, 3) for j in joints] == [9.505, 10.995]
+    assert [(j.views, j.tracks, j.passes) for j in joints] == [(4, 2, 2), (4, 2, 2)]
+    assert joint_of.tolist() == [0, 0, 1, 1, 0, 0, 1, 1]
+    # Within twice the radius (0.7 m against 0.4) the offset is one boundary's views: the
+    # loop joins the return's 9.5 m track to the outbound's 11.0 m one.
+    near = [_loop(lms[4], lms[2], 0.7)]
+    joints, _ = joint_registry(lms, tracks, near, chain, 3.5, 0.4)
+    assert [(round(j.chainage_m, 3), j.tracks) for j in joints] == [
+        (9.505, 1),
+        (10.255, 2),
+        (10.995, 1),
+    ]
 
 
 def test_nearby_features_do_not_chain_into_one_row() -> None:

@@ -51,6 +51,7 @@ JOINTS_COLUMNS = (
 
 __all__ = [
     "JOINTS_COLUMNS",
+    "LOOP_SHIFT_RADII",
     "STANDING_STEP_M",
     "Joint",
     "joint_registry",
@@ -72,6 +73,18 @@ DIRECTION_SPAN_M = 0.5
 #: one detection error (:func:`standing_poses`). Anchors of a moving robot are 0.1-3 m apart
 #: (0.2-2 m/s, an anchor every 0.5-1.5 s); a standing one moves by the odometry's noise.
 STANDING_STEP_M = 0.01
+
+
+#: A loop joins its query's track to its candidate's when the verifier's axial offset
+#: between them (``dz_m``) is at most this many same-boundary radii: each view lies within
+#: the radius of its boundary, so two views of one boundary lie within twice it (the loops
+#: of the matrix that tie one boundary, m11: offsets up to 0.12 m in the pipes, 0.39 m in the
+#: horseshoes, 0.56 m in the shields, radii 0.1, 0.22-0.4 and 0.27-0.4 m). A loop with a
+#: larger offset ties the query's boundary to one beside the candidate's: in the matrix
+#: (m11), 27 loops with offsets of 0.84-1.64 m, each joining views 0.71-1.60 m apart (placed
+#: with the ground truth: the next arch or ring, 1.2-1.5 m on, or a wall feature between);
+#: joined, one shield's rings at 9.5 and 11.0 m became one registry row at 10.85 m.
+LOOP_SHIFT_RADII = 2.0
 
 
 @dataclass(frozen=True)
@@ -190,14 +203,21 @@ def _root(parent: dict[int, int], t: int) -> int:
 
 
 def _loop_groups(
-    landmarks: Sequence[Landmark], tracks: NDArray[np.int64], loops: Sequence[QueryResult]
+    landmarks: Sequence[Landmark],
+    tracks: NDArray[np.int64],
+    loops: Sequence[QueryResult],
+    radius_m: float,
 ) -> tuple[NDArray[np.int64], set[int]]:
     """Per landmark, the root track of its group (tracks joined by ``loops``), and the
-    tracks a loop touched."""
+    tracks a loop touched. A loop whose verified axial offset (``dz_m``) is beyond
+    :data:`LOOP_SHIFT_RADII` times ``radius_m`` joins nothing: it ties the query's boundary
+    to a place that far from its candidate's, a neighbouring boundary (module docs)."""
     index = {_key(lm.submap_stamp, lm.origin): k for k, lm in enumerate(landmarks)}
     parent: dict[int, int] = {}
     confirmed: set[int] = set()
     for r in loops:
+        if abs(float(r.dz_m)) > LOOP_SHIFT_RADII * radius_m:
+            continue
         q = index.get(_key(r.query_stamp, r.query_origin))
         d = index.get(_key(r.candidate_stamp, r.candidate_origin))
         if q is None or d is None:
@@ -243,7 +263,7 @@ def joint_registry(
     ``radius_m``: the same-boundary radius (module docs; 0 merges nothing by place);
     ``poses``: per landmark, the pose it was seen from (:func:`standing_poses`; None: each
     view its own), each counted once in a joint's chainage."""
-    roots, confirmed = _loop_groups(landmarks, tracks, loops)
+    roots, confirmed = _loop_groups(landmarks, tracks, loops, radius_m)
     groups = [np.flatnonzero(roots == r) for r in np.unique(roots)]
     strong = [(bool(set(tracks[g].tolist()) & confirmed), int(g.size)) for g in groups]
     boundaries = _merge_by_place(groups, chainage_m, strong, radius_m) if groups else []
