@@ -10,6 +10,7 @@ import csv
 import json
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from decod_rs.survey import (
     survey_axes,
     survey_config,
     survey_database,
+    survey_joint_ids,
     survey_origins,
 )
 
@@ -340,3 +342,15 @@ def test_aliased_pipe_gives_no_cross_session_loop(tmp_path: Path) -> None:
     own = json.loads((again / "report.json").read_text())
     assert own["counts"]["loop_factors"] == 0, own["query_rejections"]
     shutil.rmtree(tmp_path / "a" / "log")
+
+
+def test_a_view_tied_beside_its_survey_candidate_names_no_survey_joint() -> None:
+    # Three kept views of the run's joint 0 matched survey joint 7 (offsets 0-5 cm), and one
+    # of joint 1 matched joint 7 too, but 1.2 m beside it (the next ring): joint 1 is not
+    # survey joint 7. Same-boundary radius 0.4 m.
+    offsets = [0.0, 0.05, -0.03, 1.2]
+    results = [SimpleNamespace(dz_m=dz) for dz in offsets]
+    cross = SimpleNamespace(kept=[0, 1, 2, 3], results=results, survey_joint=lambda k: 7)
+    joint_of = np.array([0, 0, 0, 1])
+    assert survey_joint_ids(cross, joint_of, 0.4) == {0: 7}  # type: ignore[arg-type]
+    assert survey_joint_ids(cross, joint_of, 1.0) == {0: 7, 1: 7}  # type: ignore[arg-type]

@@ -3,7 +3,8 @@ report cites.
 
 A physical boundary is a set of tracks (:mod:`decod_rs.tracks`: the views of one boundary
 within one pass) joined by the accepted loops between them (the outbound and the return
-track of one joint), and then by place: groups whose chainages lie within the config's
+track of one joint; not a loop whose verified axial offset ties its query beside the
+candidate's boundary, :data:`LOOP_SHIFT_RADII`), and then by place: groups whose chainages lie within the config's
 same-boundary radius (``matching.duplicate_radius_m``, 0.1-0.4 m by corridor size, the
 radius within which the tracks call views one boundary) are one row. The track links need
 the descriptor to confirm a pair, which sparse views often cannot, so without the merge a
@@ -57,6 +58,7 @@ __all__ = [
     "joint_registry",
     "landmark_chainage",
     "standing_poses",
+    "ties_one_boundary",
     "weighted_median",
     "write_joints_csv",
 ]
@@ -85,6 +87,13 @@ STANDING_STEP_M = 0.01
 #: with the ground truth: the next arch or ring, 1.2-1.5 m on, or a wall feature between);
 #: joined, one shield's rings at 9.5 and 11.0 m became one registry row at 10.85 m.
 LOOP_SHIFT_RADII = 2.0
+
+
+def ties_one_boundary(dz_m: float, radius_m: float) -> bool:
+    """Whether a verified pair whose axial offset is ``dz_m`` ties two views of one
+    boundary (within :data:`LOOP_SHIFT_RADII` same-boundary radii ``radius_m``), rather
+    than a boundary to the place beside another one."""
+    return abs(float(dz_m)) <= LOOP_SHIFT_RADII * radius_m
 
 
 @dataclass(frozen=True)
@@ -216,7 +225,7 @@ def _loop_groups(
     parent: dict[int, int] = {}
     confirmed: set[int] = set()
     for r in loops:
-        if abs(float(r.dz_m)) > LOOP_SHIFT_RADII * radius_m:
+        if not ties_one_boundary(r.dz_m, radius_m):
             continue
         q = index.get(_key(r.query_stamp, r.query_origin))
         d = index.get(_key(r.candidate_stamp, r.candidate_origin))

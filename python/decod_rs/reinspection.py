@@ -30,7 +30,7 @@ from decod_rs.changes import (
     write_changes_csv,
 )
 from decod_rs.config import Config
-from decod_rs.joints import Joint
+from decod_rs.joints import Joint, ties_one_boundary
 from decod_rs.run_files import LoopTable
 from decod_rs.selection import path_along
 from decod_rs.survey import (
@@ -117,12 +117,14 @@ class Reinspection:
             extra=extra,
         )
 
-    def survey_ids(self, joint_of: NDArray[np.int64]) -> dict[int, int]:
-        """The run's joint id -> the survey's joint id, where a view matched."""
-        return survey_joint_ids(self.cross, joint_of)
+    def survey_ids(self, joint_of: NDArray[np.int64], radius_m: float) -> dict[int, int]:
+        """The run's joint id -> the survey's joint id, where a view matched (``radius_m``:
+        the same-boundary radius, :func:`survey_joint_ids`)."""
+        return survey_joint_ids(self.cross, joint_of, radius_m)
 
-    def change_pairs(self) -> list[ChangePair]:
-        """The pairs the change report compares: the kept cross-session pairs. (Views that
+    def change_pairs(self, radius_m: float) -> list[ChangePair]:
+        """The pairs the change report compares: the kept cross-session pairs that tie one
+        boundary (``radius_m``: :func:`decod_rs.joints.ties_one_boundary`). (Views that
         did not match could be paired by position once the run is in the survey's frame; on
         the simulated hume pipe such pairs of unchanged joints, seen at the turnaround or
         from other distances, looked as changed as the changed ones, so they are left out.)"""
@@ -137,7 +139,7 @@ class Reinspection:
                 int(r.inliers),
             )
             for k, r in ((k, c.results[k]) for k in c.kept)
-            if r.candidate_index is not None
+            if r.candidate_index is not None and ties_one_boundary(r.dz_m, radius_m)
         ]
 
     def write_changes(
@@ -151,7 +153,7 @@ class Reinspection:
     ) -> dict[str, Any]:
         """``changes.csv`` and (``plot``) ``changes.png``; returns the ``report.json``
         section."""
-        pairs = self.change_pairs()
+        pairs = self.change_pairs(float(cfg.matching.duplicate_radius_m))
         changes = joint_changes(pairs, self.cross.survey, landmarks, joint_of, chainage_m, cfg)
         write_changes_csv(out / "changes.csv", changes)
         if changes and plot:

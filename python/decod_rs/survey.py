@@ -43,7 +43,7 @@ from decod_rs._core import Landmark, QueryResult
 from decod_rs.chainage import forward_course
 from decod_rs.config import Config
 from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
-from decod_rs.joints import DIRECTION_SPAN_M
+from decod_rs.joints import DIRECTION_SPAN_M, ties_one_boundary
 from decod_rs.landmark_factor import landmark_factor
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.selection import (
@@ -497,12 +497,16 @@ def place_in_survey(
     return propagate_to_scans(scans[0], scans[1], anchor_stamps, anchor_own, optimised)
 
 
-def survey_joint_ids(cross: CrossSession, joint_of: NDArray[np.int64]) -> dict[int, int]:
-    """New joint id -> the survey joint id most of its kept views matched."""
+def survey_joint_ids(
+    cross: CrossSession, joint_of: NDArray[np.int64], radius_m: float
+) -> dict[int, int]:
+    """New joint id -> the survey joint id most of its kept views matched; a view whose
+    verified axial offset ties it beside its survey candidate (``radius_m``, the
+    same-boundary radius: :func:`decod_rs.joints.ties_one_boundary`) does not vote."""
     votes: dict[int, Counter[int]] = {}
     for k in cross.kept:
         sj = cross.survey_joint(k)
-        if sj is not None:
+        if sj is not None and ties_one_boundary(cross.results[k].dz_m, radius_m):
             votes.setdefault(int(joint_of[k]), Counter())[sj] += 1
     return {j: c.most_common(1)[0][0] for j, c in votes.items()}
 

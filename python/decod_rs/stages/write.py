@@ -158,7 +158,7 @@ def write_outputs(
     joints, joint_of = joint_registry(
         lms, matched.tracks, kept, chainage, matched.split, same, poses
     )
-    survey_ids = None if stage is None else stage.survey_ids(joint_of)
+    survey_ids = None if stage is None else stage.survey_ids(joint_of, same)
     write_joints_csv(out / "joints.csv", joints, survey_ids)
     write_run_survey(
         out, lms, joint_of, anchor_stamps, (scan_stamps, correction.poses), joints, cfg
