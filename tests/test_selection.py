@@ -70,6 +70,42 @@ def test_smooth_drift_keeps_every_true_loop() -> None:
     assert all(chosen.kept), chosen.reasons
 
 
+def test_a_return_read_15_percent_short_keeps_every_right_loop_under_auto() -> None:
+    # A turn run, 40 m out: the outbound odometry reads 5 % short, the return 15 % short
+    # (the matrix's uneven drift). One outbound view (a boundary 28 m in, seen from its
+    # anchor 28 m along the odometry's path) matched by return views every 3 m of the
+    # return's odometry, each with 3 cm of noise; the implied correction changes by the
+    # return's drift, 0.15 / 0.85 of each odometry metre. Under auto's allowance all stay;
+    # under 0.15 per odometry metre, views 18 m apart conflicted.
+    from decod_rs.autoscale import CONSISTENCY_DRIFT_FRACTION, DRIFT_FRACTION
+
+    rng = np.random.default_rng(3)
+    db_path = 0.95 * 28.0
+    loops = []
+    for k, q_path in enumerate(0.95 * 40.0 + np.arange(2.0, 26.0, 3.0)):
+        true_back = (q_path - 0.95 * 40.0) / 0.85  # metres driven back
+        drift = 0.05 * 28.0 - 0.05 * 40.0 - 0.15 * true_back  # world error, db minus query
+        loops.append(
+            LoopEvidence(
+                correction=np.array([drift + rng.normal(0.0, 0.03), 0.0, 0.0]),
+                query_path_m=float(q_path),
+                db_path_m=db_path,
+                query_stamp=float(k),
+                inliers=20,
+                chance=1e-12,
+            )
+        )
+    assert CONSISTENCY_DRIFT_FRACTION == pytest.approx(DRIFT_FRACTION / (1.0 - DRIFT_FRACTION))
+    assert all(_select(loops, CONSISTENCY_DRIFT_FRACTION).kept)
+    assert not all(_select(loops, DRIFT_FRACTION).kept)
+    # A wrong one among them, one arch (1.2 m) off, is still dropped.
+    wrong = list(loops)
+    wrong[4] = replace(loops[4], correction=loops[4].correction + np.array([1.2, 0.0, 0.0]))
+    chosen = _select(wrong, CONSISTENCY_DRIFT_FRACTION)
+    assert chosen.reasons[4] == "inconsistent"
+    assert sum(chosen.kept) == len(loops) - 1
+
+
 def test_loops_that_agree_with_each_other_but_not_the_odometry_are_dropped() -> None:
     # Two wrong loops, both one 12 m jump off (an aliased pipe), alone: they corroborate each
     # other but imply far more drift than the odometry can have over their path.

@@ -4,9 +4,10 @@ report cites.
 A physical boundary is a set of tracks (:mod:`decod_rs.tracks`: the views of one boundary
 within one pass) joined by the accepted loops between them (the outbound and the return
 track of one joint; not a loop whose verified axial offset ties its query beside the
-candidate's boundary, :data:`LOOP_SHIFT_RADII`), and then by place: groups whose chainages lie within the config's
-same-boundary radius (``matching.duplicate_radius_m``, 0.1-0.4 m by corridor size, the
-radius within which the tracks call views one boundary) are one row. The track links need
+candidate's boundary, :data:`LOOP_SHIFT_RADII`), and then by place: groups whose
+chainages lie within the config's same-boundary radius (``matching.duplicate_radius_m``,
+0.1-0.4 m by corridor size, the radius within which the tracks call views one boundary)
+are one row. The track links need
 the descriptor to confirm a pair, which sparse views often cannot, so without the merge a
 joint was listed once per unlinked track: over the 100 runs of the generalisation matrix
 (m76) 13,452 rows for about 2,100 joints, 7,448 of them within 0.1 m of another (14 rows
