@@ -559,3 +559,19 @@ def test_the_scale_follows_sections_only_where_the_pairs_say_it_changes() -> Non
     assert tau > 0.0 and length > 0.0
     assert np.allclose(scales[:25], 1 / 0.95, rtol=0.015), scales[:25]
     assert np.allclose(scales[35:], 1 / 0.85, rtol=0.015), scales[35:]
+
+
+def test_a_run_that_does_not_come_back_says_when_its_odometry_wanders() -> None:
+    from decod_rs.selection import why_no_loop
+
+    t = np.linspace(0.0, 160.0, 1601)
+    one_way = np.stack([0.4 * t, np.zeros_like(t), np.zeros_like(t)], axis=1)
+    # Like KISS-ICP in the 0.3 m pipe (12.9 m of path within 3.2 m of its start): back and
+    # forth within 3.6 m of the start.
+    wander = np.stack([1.8 - 1.8 * np.cos(2 * np.pi * t / 80.0), 0 * t, 0 * t], axis=1)
+    args = ((3, 0), 3, {}, {}, None)
+    plain = why_no_loop(*args)
+    assert plain.startswith("no return pass found")
+    assert why_no_loop(*args, one_way) == plain
+    hint = why_no_loop(*args, wander)
+    assert hint.startswith(plain) and "14.4 m stays within 3.6 m of its start" in hint

@@ -240,6 +240,7 @@ def run_report(
         summary.rejections,
         rejected,
         split,
+        correction.poses[:, :3, 3],
     )
     return {
         "no_loop_reason": None if summary.accepted else no_loop,
