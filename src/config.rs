@@ -318,7 +318,10 @@ pub struct MatchingConfig {
     /// `consistency_drift_fraction` of the path between them, metres. Must stay below half
     /// the boundary spacing so a neighbouring identical joint never corroborates.
     pub consistency_tolerance_m: f64,
-    /// Odometry drift allowed per metre of path between two corroborating loops.
+    /// Odometry drift allowed per metre of path between two corroborating loops, the path
+    /// measured along the odometry itself: odometry that reads 15 % short of the distance
+    /// driven drifts 0.15 / 0.85 = 17.6 % of its own path (`auto` sets that:
+    /// `decod_rs.autoscale.CONSISTENCY_DRIFT_FRACTION`).
     pub consistency_drift_fraction: f64,
     /// `"null_model"`: accept the Top-1 when chance agreement is unlikely
     /// (`matching::null_model`: the family-wise chance over the candidates compared is at most
