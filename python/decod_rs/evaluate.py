@@ -133,12 +133,16 @@ def matched_db_origin(loops: LoopTable) -> FloatArray:
 
 
 def loop_geometry_errors(
-    loops: LoopTable, gt_stamps: FloatArray, gt_poses: FloatArray
+    loops: LoopTable,
+    gt_stamps: FloatArray,
+    gt_poses: FloatArray,
+    db_origin: FloatArray | None = None,
 ) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
     """Per row: ``supported`` (L,) (both stamps inside the ground truth; a row without a
     candidate is supported if its query stamp is), axial and lateral errors (L,) in metres
     (NaN where unsupported or no candidate) of the plane the loop asserts
-    (:func:`matched_db_origin`)."""
+    (:func:`matched_db_origin`; ``db_origin`` (L, 3) in its place: e.g. the candidate's own
+    origin, for how far apart the two views' boundaries are)."""
     t0, t1 = gt_stamps[0], gt_stamps[-1]
     has_q = (loops.query_stamp >= t0) & (loops.query_stamp <= t1)
     has_db = np.isfinite(loops.db_stamp) & (loops.db_stamp >= t0) & (loops.db_stamp <= t1)
@@ -158,7 +162,7 @@ def loop_geometry_errors(
             gt_stamps,
             gt_poses,
             loops.db_stamp[both],
-            matched_db_origin(loops)[both],
+            (matched_db_origin(loops) if db_origin is None else db_origin)[both],
             loops.db_axis[both],
         )
         axial[both], lateral[both] = _axial_lateral(o_q, a_q, o_db)

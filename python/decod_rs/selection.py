@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 
 from decod_rs._core import QueryResult
 from decod_rs.aliasing import aliasing
+from decod_rs.stall import path_length
 
 FloatArray = NDArray[np.float64]
 
@@ -339,7 +340,7 @@ def _wander(odometry: FloatArray | None) -> str:
     if odometry is None or len(odometry) < 2:
         return ""
     p = np.asarray(odometry, dtype=np.float64)
-    path = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+    path = path_length(p)
     extent = float(np.linalg.norm(p - p[0], axis=1).max())
     if path < WANDER_RATIO * max(extent, 1e-9):
         return ""

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from decod_rs.evaluate import loop_geometry_errors
 from decod_rs.joints import ties_one_boundary
 from decod_rs.run_files import LoopTable, read_loops_csv
-from decod_rs.tum import interpolate_poses, read_tum
+from decod_rs.tum import read_tum
 
 FloatArray = NDArray[np.float64]
 
@@ -67,30 +67,6 @@ class ShiftedLoop:
     views_apart_m: float
 
 
-def _views_apart(loops: LoopTable, gt: tuple[FloatArray, FloatArray]) -> FloatArray:
-    """Per row, the distance (m) along the query's axis between the two views' origins,
-    each placed with the ground truth (NaN outside it)."""
-    stamps, poses = gt
-    out = np.full(len(loops), np.nan)
-    inside = (
-        np.isfinite(loops.db_stamp)
-        & (loops.query_stamp >= stamps[0])
-        & (loops.query_stamp <= stamps[-1])
-        & (loops.db_stamp >= stamps[0])
-        & (loops.db_stamp <= stamps[-1])
-    )
-    if not np.any(inside):
-        return out
-    q = interpolate_poses(stamps, poses, loops.query_stamp[inside])
-    d = interpolate_poses(stamps, poses, loops.db_stamp[inside])
-    oq = np.einsum("nij,nj->ni", q[:, :3, :3], loops.query_origin[inside]) + q[:, :3, 3]
-    od = np.einsum("nij,nj->ni", d[:, :3, :3], loops.db_origin[inside]) + d[:, :3, 3]
-    axis = np.einsum("nij,nj->ni", q[:, :3, :3], loops.query_axis[inside])
-    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
-    out[inside] = np.abs(np.einsum("ni,ni->n", od - oq, axis))
-    return out
-
-
 def count_reasons(
     loops: LoopTable,
     gt: tuple[FloatArray, FloatArray],
@@ -104,7 +80,7 @@ def count_reasons(
     supported, axial, _ = loop_geometry_errors(loops, *gt)
     reasons = loops.extra.get("reason", [""] * len(loops))
     dz = np.array([float(v) if v else 0.0 for v in loops.extra.get("dz_m", [""] * len(loops))])
-    apart = _views_apart(loops, gt)
+    _, apart, _ = loop_geometry_errors(loops, *gt, db_origin=loops.db_origin)
     shifted = []
     for k in range(len(loops)):
         if not supported[k] or not np.isfinite(axial[k]):
