@@ -92,15 +92,17 @@ def run_log(
         imu_topic = find_imu_topic(log)
     topics = (points_topic, odom_topic, None if odom_tum is None else Path(odom_tum), imu_topic)
 
+    # The recording is written by a worker process while the figures are drawn, if any.
+    recording = None if rerun is None else Path(rerun)
+    visuals = Visuals(map=map, rerun=recording, worker=plots)
+
     def configured(run_topics: Topics) -> tuple[Config, dict[str, Any] | None, Any]:
         cfg, auto, imu = configure(log, preset, config_path, run_topics, sequential, srv)
         if srv is not None:
             check_compatible(srv, cfg)
+        visuals.prepare()  # the end's imports overlap the extraction, not the probe
         return cfg, auto, imu
 
-    # The recording is written by a worker process while the figures are drawn, if any.
-    visuals = Visuals(map=map, rerun=None if rerun is None else Path(rerun), worker=plots)
-    visuals.prepare()
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
     one = stage_one(log, topics, configured, progress, keep_map=map or rerun is not None)
     head = {"preset": preset, "auto": one.auto, "imu_topic": imu_topic, "ingest": one.ingest}
