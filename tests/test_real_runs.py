@@ -225,7 +225,7 @@ def test_cli_prints_the_damage_once_on_one_line(
     raw = (sim / "log.bag").read_bytes()
     cut = tmp_path / "cut.bag"
     cut.write_bytes(raw[: len(raw) // 2])
-    args = ["run", str(cut), "--preset", "pipe", "--no-plots", "--out", str(tmp_path / "o")]
+    args = ["run", str(cut), "--preset", "pipe", "--no-plots", "-o", str(tmp_path / "o")]
     assert cli_main(args) == 0
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if "warning" in line]

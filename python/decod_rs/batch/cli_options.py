@@ -63,7 +63,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--manifest", type=Path, help="TOML/JSON manifest: per-log options, ground truth, grid"
     )
-    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output directory")
     p.add_argument("--force", action="store_true", help="redo runs that are complete")
     _add_run_options(p)
     _add_engine_options(p)

@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar=("FINE", "COARSE"),
         help="axial tolerances in metres instead of the preset's",
     )
-    p.add_argument("--out", type=Path, help="output directory (default: DIR)")
+    p.add_argument("-o", "--out", type=Path, help="output directory (default: DIR)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.set_defaults(func=run)
 

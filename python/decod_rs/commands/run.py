@@ -89,7 +89,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "its frame, joints.csv gives its chainage and joint ids, changes.csv / changes.png "
         "rank the joints that changed most (without --preset/--config: its config)",
     )
-    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=run)
 
 

@@ -19,7 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("scene", choices=sorted(SCENES))
-    p.add_argument("--out", required=True, type=Path, help="output directory")
+    p.add_argument("-o", "--out", required=True, type=Path, help="output directory")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--world-seed",
