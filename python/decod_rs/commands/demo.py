@@ -23,7 +23,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "demo",
         help="simulate a drifting pipe inspection, correct it and evaluate (no data needed)",
     )
-    p.add_argument("-o", "--out", type=Path, default=Path("decod_demo"), help="default ./decod_demo")
+    p.add_argument(
+        "-o", "--out", type=Path, default=Path("decod_demo"), help="default ./decod_demo"
+    )
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--drift", default="3.0", help="odometry endpoint error, metres (default 3)")
     p.set_defaults(func=run)
