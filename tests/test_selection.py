@@ -575,3 +575,49 @@ def test_a_run_that_does_not_come_back_says_when_its_odometry_wanders() -> None:
     assert why_no_loop(*args, one_way) == plain
     hint = why_no_loop(*args, wander)
     assert hint.startswith(plain) and "14.4 m stays within 3.6 m of its start" in hint
+
+
+def test_a_stretch_with_its_own_scale_does_not_measure_the_pass() -> None:
+    """Pairs that all lie in one stretch measure that stretch; where the evidence chose a
+    spread of scales, the pass's mean scale is known only to about that spread, and a pass
+    known to worse than ``MAX_SCALE_SIGMA`` keeps its odometry (seed 251's pitched 16 beams
+    in the horseshoe: a return within 0.2 % overall, measured on 5 m that read 8-11 % short,
+    was stretched 8.7 % and ended 3.35 m from the start instead of 1.20 m: its pairs read
+    1.14 and 1.06)."""
+    from decod_rs.odometry_scale import (
+        MAX_SCALE_SIGMA,
+        _measured_scale,
+        _pass_scale_sigma,
+        _pass_scales,
+    )
+
+    rng = np.random.default_rng(3)
+    true = np.full(13, 3.0)  # anchors 3 m apart
+    reads = np.ones(13)
+    reads[2], reads[3] = 1 / 1.14, 1 / 1.06  # the stretch the pairs see (as measured there)
+    u = np.concatenate([[0.0], np.cumsum(true * reads)])
+    sigma = 0.04
+    pairs = [(2, 3, 3.0 + rng.normal(0.0, sigma)) for _ in range(4)]
+    pairs += [(3, 4, 3.0 + rng.normal(0.0, sigma)) for _ in range(6)]
+    _, _, slip = _pass_scales(u, pairs, sigma)
+    ratio, error = _measured_scale(u, pairs, sigma)
+    assert slip[0] > 0.0 and ratio > 1.07  # the stretch's own scale, not the pass's 1.0
+    assert error < 0.01  # as a standard error the pairs look decisive...
+    spread = _pass_scale_sigma(u, pairs, sigma, slip)
+    assert spread > MAX_SCALE_SIGMA and spread > 0.5 * slip[0]  # ...the model says not
+    # The same pairs spread along the pass (one scale, no spread chosen): the pass's sigma is
+    # the standard error.
+    even = np.concatenate([[0.0], np.cumsum(true * 0.95)])
+    along = [(k, k + 1, 3.0 + rng.normal(0.0, sigma)) for k in range(13)]
+    _, _, slip = _pass_scales(even, along, sigma)
+    assert slip[0] == 0.0
+    error = _measured_scale(even, along, sigma)[1]
+    assert _pass_scale_sigma(even, along, sigma, slip) == pytest.approx(error, rel=1e-3)
+    # A scale that changes along the pass, measured all along it (a spread chosen): every
+    # stretch is measured, so the mean scale is known to about the standard error, not tau.
+    varying = 0.9 + 0.08 * (np.arange(13) % 2)
+    u = np.concatenate([[0.0], np.cumsum(true * varying)])
+    along = [(k, k + 1, 3.0 + rng.normal(0.0, sigma)) for k in range(13) for _ in range(3)]
+    _, _, slip = _pass_scales(u, along, sigma)
+    assert slip[0] > 0.0
+    assert _pass_scale_sigma(u, along, sigma, slip) < min(0.2 * slip[0], MAX_SCALE_SIGMA)
