@@ -95,7 +95,7 @@ SCALE_LIMITS = (0.5, 2.0)
 #: A pass is rescaled when at least ``MIN_PAIRS`` pairs measure its scale to within
 #: ``MAX_SCALE_SIGMA`` (standard error of the pairs' ratios ``D_ab / (u_b - u_a)``, weighted
 #: by ``|u_b - u_a| / (sqrt 2 sigma)``; or where the evidence chose a spread of scales along
-#: the pass, the pass's own scale's posterior sigma under it if larger,
+#: the pass, the posterior sigma of the pass's mean scale under it if larger,
 #: :func:`_pass_scale_sigma`, ``pass_scale_sigma`` in ``report.json``): a measured
 #: 1.04 +- 0.02 is a better estimate than an assumed 1, whose error is the drift itself
 #: (LiDAR odometry in a degenerate corridor is off by a few per cent per leg; 5-15 % under
@@ -366,7 +366,7 @@ class _Pass:
     slip: tuple[float, float] = (0.0, 0.0)
     ratio: float = 1.0
     error: float = float("inf")
-    #: The pass's own scale's sigma: ``error`` or, under a spread of scales, more.
+    #: The sigma of the pass's mean scale: ``error`` or, under a spread of scales, more.
     pass_error: float = float("inf")
     share: float = 0.0
     measured: bool = False
