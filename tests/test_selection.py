@@ -621,3 +621,52 @@ def test_a_stretch_with_its_own_scale_does_not_measure_the_pass() -> None:
     _, _, slip = _pass_scales(u, along, sigma)
     assert slip[0] > 0.0
     assert _pass_scale_sigma(u, along, sigma, slip) < min(0.2 * slip[0], MAX_SCALE_SIGMA)
+
+
+def test_the_slip_model_takes_pairs_of_the_same_anchors_together_exactly() -> None:
+    """Pairs between the same two anchors enter the slip model as their mean (a sufficient
+    statistic): the scales and the chosen spread are those of the pairs one by one (the
+    model written out below, as it was before), with solves of the anchor pairs' size."""
+    from decod_rs.odometry_scale import (
+        SLIP_EVIDENCE_MARGIN,
+        SLIP_LENGTHS_M,
+        SLIP_SPREADS,
+        _pass_scales,
+    )
+
+    def one_by_one(u: Any, pairs: Any, sigma: float) -> tuple[Any, tuple[float, float]]:
+        du = np.diff(u)
+        a_mat = np.zeros((len(pairs), du.size))
+        for i, (a, b, _) in enumerate(pairs):
+            a_mat[i, a:b] = du[a:b]
+        residual = np.array([d for *_, d in pairs]) - a_mat.sum(axis=1)
+        path = np.cumsum(np.abs(du)) - 0.5 * np.abs(du)
+        gap = np.abs(path[:, None] - path[None, :])
+        best: Any = None
+        for tau in SLIP_SPREADS:
+            for length in SLIP_LENGTHS_M if tau > 0 else SLIP_LENGTHS_M[:1]:
+                prior = 1.0 + tau**2 * np.exp(-gap / length)
+                c = a_mat @ prior @ a_mat.T + np.eye(len(pairs)) * 2.0 * sigma**2
+                solved = np.linalg.solve(c, residual)
+                evidence = -0.5 * (residual @ solved + np.linalg.slogdet(c)[1])
+                evidence -= SLIP_EVIDENCE_MARGIN if tau > 0 else 0.0
+                if best is None or evidence > best[0]:
+                    scales = 1.0 + prior @ a_mat.T @ solved
+                    best = (evidence, scales, (tau, length if tau else 0.0))
+        return best[1], best[2]
+
+    rng = np.random.default_rng(11)
+    for trial in range(40):
+        n = int(rng.integers(3, 25))
+        u = np.concatenate([[0.0], np.cumsum(rng.uniform(1.0, 3.0, n))])
+        local = 1.0 + (0.1 * rng.normal(size=n) if trial % 2 else np.zeros(n))
+        pairs = []
+        for _ in range(int(rng.integers(1, 50))):
+            a = int(rng.integers(0, n))
+            b = min(n, a + int(rng.integers(1, 3)))
+            true = float(np.sum(np.diff(u)[a:b] * local[a:b]))
+            pairs.append((a, b, true + rng.normal(0.0, 0.03)))
+        scales, _, slip = _pass_scales(u, pairs, 0.03)
+        expected, expected_slip = one_by_one(u, pairs, 0.03)
+        assert slip == expected_slip, trial
+        np.testing.assert_allclose(scales, np.clip(expected, 0.5, 2.0), atol=1e-9)
