@@ -154,13 +154,11 @@ def _pass_scales(
     share = float(np.abs(du[covered]).sum() / total) if total > 0 else 0.0
     if not pairs:
         return np.ones(n), share, (0.0, 0.0)
-    noise = np.diag(2.0 * sigma_m**2 / counts)
     residual = y - a_mat.sum(axis=1)  # against every scale 1
     best: tuple[float, FloatArray, tuple[float, float]] | None = None
     for tau in SLIP_SPREADS:
         for length in SLIP_LENGTHS_M if tau > 0 else SLIP_LENGTHS_M[:1]:
-            prior = 1.0 + tau**2 * np.exp(-gap / length)  # sigma 1 on the pass's scale
-            c = a_mat @ prior @ a_mat.T + noise
+            prior, c = _slip_covariances(a_mat, counts, gap, sigma_m, (tau, length))
             sign, logdet = np.linalg.slogdet(c)
             if sign <= 0:
                 continue
@@ -204,6 +202,24 @@ def _pair_design(
     return a_mat, y, counts, np.abs(path[:, None] - path[None, :])
 
 
+def _slip_covariances(
+    a_mat: FloatArray,
+    counts: FloatArray,
+    gap: FloatArray,
+    sigma_m: float,
+    slip: tuple[float, float],
+) -> tuple[FloatArray, FloatArray]:
+    """Under the slip model ``slip`` = ``(tau, length)``: the prior covariance of the
+    intervals' scales (the pass's own scale, sigma 1, plus the spread ``tau`` correlated over
+    ``length``) and the covariance of the anchor pairs' mean displacements (the design of
+    :func:`_pair_design`, each mean with one pair's noise over its count)."""
+    tau, length = slip
+    prior = np.ones_like(gap)
+    if tau > 0 and length > 0:
+        prior += tau**2 * np.exp(-gap / length)
+    return prior, a_mat @ prior @ a_mat.T + np.diag(2.0 * sigma_m**2 / counts)
+
+
 def _pass_scale_sigma(
     u: FloatArray, pairs: list[tuple[int, int, float]], sigma_m: float, slip: tuple[float, float]
 ) -> float:
@@ -227,11 +243,7 @@ def _pass_scale_sigma(
     if float(length_of.sum()) <= 0.0:
         return float("inf")
     w = length_of / length_of.sum()
-    tau, length = slip
-    prior = np.ones_like(gap)  # the pass's own scale, sigma 1
-    if tau > 0 and length > 0:
-        prior += tau**2 * np.exp(-gap / length)
-    c = a_mat @ prior @ a_mat.T + np.diag(2.0 * sigma_m**2 / counts)
+    prior, c = _slip_covariances(a_mat, counts, gap, sigma_m, slip)
     m = a_mat @ prior @ w  # the covariance of the pairs with the pass's mean scale
     try:
         explained = float(m @ np.linalg.solve(c, m))
