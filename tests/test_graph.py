@@ -4,6 +4,7 @@ corridor, Huber against a wrong loop, scan propagation, exports and TUM files.""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import gtsam
 import numpy as np
@@ -19,7 +20,7 @@ from decod_rs.graph import (
     propagate_to_scans,
 )
 from decod_rs.graph_export import G2O_LANDMARK_TAG, write_g2o, write_graph_json
-from decod_rs.landmark_factor import axis_frame, landmark_residual
+from decod_rs.landmark_factor import axis_frame, landmark_factor, landmark_residual
 from decod_rs.tum import read_tum, so3_exp, write_tum
 
 TUNNEL = decod_rs.load_config(preset="tunnel").graph
@@ -112,15 +113,113 @@ def test_factor_in_gtsam_uses_the_same_residual():
     graph, values = decod_rs.graph.build_graph(np.stack([ti, tj]), [lc], TUNNEL)
     factor = graph.at(graph.size() - 1)
     expected = landmark_residual(ti, tj, lc.query_origin, lc.query_axis, cj, lc.db_axis)[0]
-    # The graph applies the position sigmas along the query's axis and across it.
+    # The graph applies the position sigmas along the query's axis and across it, and its
+    # factor carries the residual whitened, its norm the Huber loss's (far beyond k here).
     expected[:3] = axis_frame(lc.query_axis) @ expected[:3]
-    np.testing.assert_allclose(factor.unwhitenedError(values), expected, atol=1e-12)
+    whitened = expected / lc.sigmas(TUNNEL)
+    norm, k = np.linalg.norm(whitened), TUNNEL.huber_k
+    assert norm > k
+    huber = whitened * np.sqrt(2 * k * norm - k * k) / norm
+    np.testing.assert_allclose(factor.unwhitenedError(values), huber, rtol=1e-12)
     np.testing.assert_allclose(
         np.linalg.norm(expected[:3]),
         np.linalg.norm(
             landmark_residual(ti, tj, lc.query_origin, lc.query_axis, cj, lc.db_axis)[0][:3]
         ),
     )
+
+
+def _separate_factors(loops, cfg):
+    """The graph's loops one robust GTSAM factor each, as GTSAM's noise model weighs them:
+    the reference the grouped factors are held to."""
+    graph = gtsam.NonlinearFactorGraph()
+    for lc in loops:
+        noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k),
+            gtsam.noiseModel.Diagonal.Sigmas(lc.sigmas(cfg)),
+        )
+        graph.add(
+            landmark_factor(
+                lc.query_index,
+                lc.db_index,
+                lc.query_origin,
+                lc.query_axis,
+                lc.db_origin,
+                lc.db_axis,
+                noise,
+                frame=axis_frame(lc.query_axis),
+            )
+        )
+    return graph
+
+
+def test_loops_between_two_poses_act_as_one_robust_factor_each():
+    """Loops between the same two poses go into one factor (fewer Python calls in the
+    optimiser): its error and its linearisation (the normal equations LM steps on) are those
+    of one Huber-robust factor per loop, for loops inside and beyond the Huber threshold and
+    for loops whose query is either pose."""
+    rng = np.random.default_rng(7)
+    poses = np.stack([random_pose(rng) for _ in range(3)])
+    loops = []
+    pairs = ((0, 1), (1, 0), (0, 1), (2, 1), (1, 2), (0, 2))
+    for (qi, di), off in zip(pairs, (0.0, 0.3, 0.01, 0.5, 0.02, 0.0), strict=True):
+        point, axis = rng.normal(size=3), rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        ci, ai = observe(poses[qi], point, axis)
+        cj, aj = observe(poses[di], point + rng.normal(size=3) * off, axis)
+        loops.append(LoopConstraint(qi, di, ci, ai, cj, aj, inliers=20))
+    values = gtsam.Values()
+    for k, pose in enumerate(poses):
+        values.insert(k, gtsam.Pose3(pose))
+    grouped = gtsam.NonlinearFactorGraph()
+    decod_rs.graph._add_loops(grouped, poses, loops, TUNNEL)
+    separate = _separate_factors(loops, TUNNEL)
+    assert grouped.size() == 3 and separate.size() == len(loops)  # pairs {0,1}, {1,2}, {0,2}
+    whitened = [
+        np.linalg.norm(
+            decod_rs.graph._factor_residual(poses, poses, lc, TUNNEL) / lc.sigmas(TUNNEL)
+        )
+        for lc in loops
+    ]
+    assert min(whitened) < TUNNEL.huber_k < max(whitened)  # both sides of the kernel
+    np.testing.assert_allclose(grouped.error(values), separate.error(values), rtol=1e-12)
+    for graph in (grouped, separate):
+        assert graph.error(values) > 0
+    h_grouped, g_grouped = grouped.linearize(values).hessian()
+    h_separate, g_separate = separate.linearize(values).hessian()
+    np.testing.assert_allclose(h_grouped, h_separate, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(g_grouped, g_separate, rtol=1e-10, atol=1e-9)
+
+
+def test_grouped_loops_optimise_like_separate_factors():
+    """The corridor with each loop seen twice more from the same poses (a boundary's views
+    from one submap pair) and one wrong loop: LM over the grouped factors ends where it ends
+    over one factor per loop."""
+    _, odom, loops = corridor()
+    i = 200
+    wrong = LoopConstraint(
+        i,
+        60,
+        loops[0].query_origin,
+        loops[0].query_axis,
+        loops[0].db_origin,
+        loops[0].db_axis,
+        inliers=9,
+    )
+    shifted = [replace(lc, query_origin=lc.query_origin + 0.01) for lc in loops]
+    all_loops = [*loops, *shifted, wrong]
+    grouped, initial = decod_rs.graph.build_graph(odom, all_loops, TUNNEL)
+    separate, _ = decod_rs.graph.build_graph(odom, [], TUNNEL)
+    separate.push_back(_separate_factors(all_loops, TUNNEL))
+    assert grouped.size() < separate.size()
+    params = gtsam.LevenbergMarquardtParams()
+    ends = [
+        gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        for graph in (grouped, separate)
+    ]
+    a, b = (np.stack([v.atPose3(k).matrix() for k in range(odom.shape[0])]) for v in ends)
+    assert np.abs(a[:, :3, 3] - odom[:, :3, 3]).max() > 1.0  # the loops moved the poses
+    np.testing.assert_allclose(a, b, atol=1e-9)
 
 
 def consistent_pair(rng):

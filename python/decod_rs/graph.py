@@ -31,14 +31,18 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from decod_rs.config import Config
-from decod_rs.landmark_factor import axis_frame, landmark_factor, landmark_residual
+from decod_rs.landmark_factor import (
+    LandmarkTerm,
+    axis_frame,
+    landmark_factor_group,
+    landmark_residual,
+)
 from decod_rs.tum import blend_poses, check_poses, interpolate_poses
 
 FloatArray = NDArray[np.float64]
@@ -286,26 +290,30 @@ def _add_loops(
     cfg: Config,
     index: dict[int, int] | None = None,
 ) -> None:
-    """One robust loop factor per loop, on keys ``index[pose index]`` (identity if None)."""
+    """The robust loop factors, on keys ``index[pose index]`` (identity if None): one
+    ``BetweenFactorPose3`` per loop for ``pose3``; for ``five_dof`` the loops between the
+    same two poses as one factor (:func:`~decod_rs.landmark_factor.landmark_factor_group`:
+    the same error and steps as one factor each, at a fraction of the calls)."""
+    groups: dict[tuple[int, int], list[LandmarkTerm]] = {}
     for lc in loops:
-        noise = _robust(lc.sigmas(cfg), cfg.huber_k)
         qi, di = lc.query_index, lc.db_index
         ki, kj = (qi, di) if index is None else (index[qi], index[di])
         if cfg.loop_factor == "pose3":
+            noise = _robust(lc.sigmas(cfg), cfg.huber_k)
             graph.add(gtsam.BetweenFactorPose3(ki, kj, _pose3_measurement(p, lc), noise))
-        else:
-            graph.add(
-                landmark_factor(
-                    ki,
-                    kj,
-                    lc.query_origin,
-                    lc.query_axis,
-                    lc.db_origin,
-                    lc.db_axis,
-                    noise,
-                    frame=axis_frame(lc.query_axis),
-                )
-            )
+            continue
+        term = LandmarkTerm(
+            np.asarray(lc.query_origin, dtype=np.float64),
+            np.asarray(lc.query_axis, dtype=np.float64),
+            np.asarray(lc.db_origin, dtype=np.float64),
+            np.asarray(lc.db_axis, dtype=np.float64),
+            axis_frame(lc.query_axis),
+            lc.sigmas(cfg),
+            swapped=ki > kj,
+        )
+        groups.setdefault((min(ki, kj), max(ki, kj)), []).append(term)
+    for (ka, kb), terms in groups.items():
+        graph.add(landmark_factor_group(ka, kb, terms, float(cfg.huber_k)))
 
 
 def build_graph(
@@ -483,7 +491,6 @@ def optimize(
     out = np.stack([values.atPose3(k).matrix() for k in range(p.shape[0])])
     elapsed = time.perf_counter() - start
 
-    first_loop = graph.size() - len(loops)
     residuals = np.zeros((len(loops), 4))
     weights = np.ones(len(loops))
     for n, lc in enumerate(loops):
@@ -496,8 +503,7 @@ def optimize(
             lc.db_origin,
             lc.db_axis,
         )
-        factor: Any = graph.at(first_loop + n)
-        e = float(np.linalg.norm(factor.unwhitenedError(values) / sigmas))
+        e = float(np.linalg.norm(_factor_residual(out, p, lc, cfg) / sigmas))
         weights[n] = 1.0 if e <= cfg.huber_k else cfg.huber_k / e
     return GraphResult(
         poses=out,
@@ -509,6 +515,34 @@ def optimize(
         loop_residuals=residuals,
         loop_weights=weights,
     )
+
+
+def _factor_residual(
+    poses: FloatArray, odometry: FloatArray, lc: LoopConstraint, cfg: Config
+) -> FloatArray:
+    """The unwhitenedError of ``lc``'s factor at ``poses`` (its Huber weight follows from its
+    norm once whitened by its sigmas): the 5-DoF residual with its position rows along and
+    across the axis, or the ``pose3`` between error against the measurement the graph made
+    from the ``odometry``."""
+    ti, tj = poses[lc.query_index], poses[lc.db_index]
+    if cfg.loop_factor == "pose3":
+        factor = gtsam.BetweenFactorPose3(
+            0, 1, _pose3_measurement(odometry, lc), gtsam.noiseModel.Unit.Create(6)
+        )
+        values = gtsam.Values()
+        values.insert(0, gtsam.Pose3(ti))
+        values.insert(1, gtsam.Pose3(tj))
+        return np.asarray(factor.unwhitenedError(values), dtype=np.float64)
+    res, _, _ = landmark_residual(
+        ti,
+        tj,
+        lc.query_origin,
+        lc.query_axis,
+        lc.db_origin,
+        lc.db_axis,
+        frame=axis_frame(lc.query_axis),
+    )
+    return res
 
 
 def _inverse(t: FloatArray) -> FloatArray:
