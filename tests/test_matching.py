@@ -77,6 +77,38 @@ def test_a_runs_views_prepared_once_give_the_database_the_same_answers() -> None
         shared.query_batch_prepared(memo.views, [16])
 
 
+def test_a_runs_queries_in_slices_give_the_same_answers_and_show_progress(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # decod run queries a batch in slices (QUERY_CHUNKS) to show its progress on a long log:
+    # the answers are those of the whole batch at once.
+    from decod_rs.matching import PairMemo
+    from decod_rs.stages.match import query_database
+
+    outbound = [synthetic_landmark(2, j, stamp=float(j), view_seed=j) for j in range(12)]
+    back = [
+        synthetic_landmark(2, j, stamp=500.0 + j, view_seed=50 + j, reversed=j % 2 == 1)
+        for j in range(0, 12, 2)
+    ]
+    landmarks = outbound + back
+    origins = np.array([lm.origin for lm in landmarks])
+    axes = np.array([lm.axis for lm in landmarks])
+    tracks = np.arange(len(landmarks), dtype=np.int64)
+    memo = PairMemo(landmarks, CFG.matching)
+    results, mode, order = query_database(
+        landmarks, tracks, (origins, axes), CFG, "batch", 250.0, memo, progress=True
+    )
+    db = LandmarkDatabase(CFG)
+    db.extend_prepared(memo.views, list(range(12)), list(range(12)), origins[:12], axes[:12])
+    queries = list(range(12, len(landmarks)))
+    want = db.query_batch_prepared(memo.views, queries, across_passes=True, directions=axes[12:])
+    assert (mode, order) == ("batch", list(range(12)))
+    assert [r.to_json() for r in results] == [r.to_json() for r in want]
+    assert sum(r.accepted for r in results) >= 3
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("match")]
+    assert lines and lines[-1].split()[2] == f"{len(queries)}/{len(queries)}"
+
+
 def test_the_odometry_heading_keeps_a_runs_answers_and_refuses_bad_axes() -> None:
     # A run orients its views (each landmark's axis in the odometry frame): the return pass
     # reversed, along -x, the outbound along +x, turned 20 degrees to stand for yaw drift.

@@ -159,11 +159,11 @@ def finish_run(
     (which replays one extraction under several matching/graph settings) share it."""
     ex, scans, processor = extraction.extracted, extraction.scans, extraction.processor
     t0 = time.perf_counter()
-    matched = match_and_select(ex, cfg, mode, *scans)
+    matched = match_and_select(ex, cfg, mode, *scans, progress=progress)
     timings["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    matched, solved = solve(ex, matched, cfg, scans, loops, extraction.gap_factors)
+    matched, solved = solve(ex, matched, cfg, scans, loops, extraction.gap_factors, progress)
     timings["optimise"] = time.perf_counter() - t0
 
     rebuild = None

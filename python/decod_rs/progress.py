@@ -12,10 +12,12 @@ T = TypeVar("T")
 
 
 class Progress:
-    """Counts work done towards ``total`` and shows rate and remaining time."""
+    """Counts work done towards ``total`` and shows rate and remaining time; without a total,
+    the count (of ``unit``, e.g. ``"graphs"``) and the rate."""
 
-    def __init__(self, label: str, total: int | None, enabled: bool = True) -> None:
+    def __init__(self, label: str, total: int | None, enabled: bool = True, unit: str = "") -> None:
         self.label = label
+        self.unit = unit
         self.total = total
         self.done = 0
         self.enabled = enabled
@@ -51,7 +53,8 @@ class Progress:
                 f"{rate:7.1f}/s {elapsed:6.1f}s" + (f" eta {eta:5.1f}s" if not final else "")
             )
         else:
-            text = f"{self.label:<14} {self.done} {rate:7.1f}/s {elapsed:6.1f}s"
+            count = f"{self.done} {self.unit}".rstrip()
+            text = f"{self.label:<14} {count} {rate:7.1f}/s {elapsed:6.1f}s"
         end = "\n" if newline or final else ""
         sys.stderr.write(("\r" if self._tty else "") + text + end)
         sys.stderr.flush()

@@ -16,6 +16,7 @@ from decod_rs.chainage import revisits
 from decod_rs.config import Config
 from decod_rs.disambiguation import CorrectedFrame, near_loops, resolve_with_prior
 from decod_rs.matching import LandmarkDatabase, PairMemo
+from decod_rs.progress import Progress
 from decod_rs.selection import path_along, select_loops
 from decod_rs.sequential import (
     same_boundary,
@@ -37,6 +38,10 @@ FloatArray = NDArray[np.float64]
 #: the return leg covers at least this fraction of the outbound distance; otherwise every
 #: landmark queries all older ones (online).
 MIN_RETURN_FRACTION = 0.25
+
+#: Batch queries go to the matcher in this many slices, so a long log's matching shows its
+#: progress (each slice is still parallel inside: a kilometre of tunnel has ~1,800 queries).
+QUERY_CHUNKS = 20
 
 
 def split_stamp(stamps: FloatArray, poses: FloatArray) -> float | None:
@@ -112,13 +117,15 @@ def query_database(
     split: float | None,
     pairs: PairMemo,
     revisited: NDArray[np.bool_] | None = None,
+    progress: bool = False,
 ) -> tuple[list[QueryResult], str, list[int]]:
     """Queries and their top-1 results, the mode used, and the landmark behind each
     database index. Every view goes into the database under its track (physical boundary)
     id, placed at ``where`` (origins and axes, (N, 3) each, in the odometry frame: the
     coarse stage's neighbours and the heading prior), but those ``revisited`` marks
     (:func:`revisit_views`), which still query it; batch mode takes the landmarks as the
-    track links prepared them (``pairs.views``)."""
+    track links prepared them (``pairs.views``) and queries in ``QUERY_CHUNKS`` slices (each
+    query is independent of the others: the same results, with ``progress`` on stderr)."""
     origins, axes = where
     again = np.zeros(len(landmarks), dtype=bool) if revisited is None else revisited
     db = LandmarkDatabase(cfg)
@@ -136,18 +143,28 @@ def query_database(
         ids = [int(tracks[k]) for k in outbound]
         db.extend_prepared(views, outbound, ids, origins[outbound], axes[outbound])
         queries = [k for k, lm in enumerate(landmarks) if lm.submap_stamp > split]
-        results = db.query_batch_prepared(
-            views, queries, across_passes=True, directions=axes[queries]
-        )
+        bar = Progress("match", len(queries) or None, enabled=progress)
+        results = []
+        step = max(1, -(-len(queries) // QUERY_CHUNKS))
+        for start in range(0, len(queries), step):
+            chunk = queries[start : start + step]
+            results.extend(
+                db.query_batch_prepared(views, chunk, across_passes=True, directions=axes[chunk])
+            )
+            bar.advance(len(chunk))
+        bar.close()
         return results, mode, outbound
     results = []
     order = sorted(range(len(landmarks)), key=lambda k: landmarks[k].submap_stamp)
     added = []
+    bar = Progress("match", len(order) or None, enabled=progress)
     for k in order:
         results.append(db.query(landmarks[k], direction=axes[k]))
         if not again[k]:
             db.add(landmarks[k], int(tracks[k]), origins[k], axes[k])
             added.append(k)
+        bar.advance()
+    bar.close()
     return results, mode, added
 
 
@@ -158,10 +175,12 @@ def match_and_select(
     scan_stamps: FloatArray,
     scan_odom: FloatArray,
     link_frame: FloatArray | None = None,
+    progress: bool = False,
 ) -> Matched:
     """Stages 2-3: tracks, matching, selection. ``link_frame``: the scan poses in which views
     are linked into tracks (default the odometry; a rebuilt round links in the corrected
-    trajectory of the first, :mod:`decod_rs.refinement`)."""
+    trajectory of the first, :mod:`decod_rs.refinement`); ``progress``: the queries' on
+    stderr."""
     split = split_stamp(scan_stamps, scan_odom)
     anchors = dict(zip(ex.anchor_stamps, ex.anchor_poses, strict=True))
     m = cfg.matching
@@ -184,7 +203,7 @@ def match_and_select(
         ex.landmarks, (scan_stamps, scan_odom), split, float(m.duplicate_radius_m)
     )
     results, used_mode, db_order = query_database(
-        ex.landmarks, tracks, where, cfg, mode, split, pairs, again
+        ex.landmarks, tracks, where, cfg, mode, split, pairs, again, progress
     )
     pairs.release_views()
     views = views_per_landmark(tracks)

@@ -52,8 +52,12 @@ def rebuilt(
             decisions.append(decision)
             break
         ex2 = rebuild(extraction, cfg, solved.stitching, progress)
-        matched2 = match_and_select(ex2, cfg, mode, *scans, link_frame=solved.stitching)
-        matched2, solved2 = solve(ex2, matched2, cfg, scans, True, extraction.gap_factors)
+        matched2 = match_and_select(
+            ex2, cfg, mode, *scans, link_frame=solved.stitching, progress=progress
+        )
+        matched2, solved2 = solve(
+            ex2, matched2, cfg, scans, True, extraction.gap_factors, progress=progress
+        )
         decision = replace(
             decision,
             loops=(sum(matched.keep), sum(matched2.keep)),

@@ -17,6 +17,7 @@ from decod_rs.end_faces import face_constraints
 from decod_rs.graph import CorrectionResult, LoopConstraint, correct_trajectory
 from decod_rs.loop_scale import stitch_with_loop_scales
 from decod_rs.odometry_scale import ScaleEstimate, odometry_sigma_factors, rescale_odometry
+from decod_rs.progress import Progress
 from decod_rs.residuals import MAX_DROPS, loop_residuals, worst_unsatisfied
 from decod_rs.selection import effective_db_origin, path_along
 from decod_rs.sequential import (
@@ -238,16 +239,20 @@ def solve(
     scans: tuple[FloatArray, FloatArray],
     loops: bool,
     gap_factors: FloatArray | None = None,
+    progress: bool = False,
 ) -> tuple[Matched, Solved]:
     """Factors and optimisation; then ambiguous queries placed by the corrected trajectory
     and, if any became loops, factors and optimisation again (stage 3b); then, one at a
-    time, loops the optimised graph cannot satisfy dropped (:mod:`decod_rs.residuals`)."""
+    time, loops the optimised graph cannot satisfy dropped (:mod:`decod_rs.residuals`).
+    ``progress``: the graphs solved so far, on stderr."""
 
     terms = track_terms(ex, matched, cfg, scans) if loops else None
+    bar = Progress("optimise", None, enabled=progress, unit="graphs")
 
     def solve_once(matched: Matched) -> Solved:
         constraints, seq = ([], None) if terms is None else graph_factors(ex, matched, terms)
         optimised = optimise(scans, ex, matched.split, constraints, seq, cfg, gap_factors)
+        bar.advance()
         return Solved(constraints, seq, *optimised, cross=None if terms is None else terms.cross)
 
     solved = solve_once(matched)
@@ -265,4 +270,5 @@ def solve(
         keep[worst], reasons[worst] = False, "inconsistent"
         matched = replace(matched, keep=keep, reasons=reasons, by_prior=matched.by_prior - {worst})
         solved = solve_once(matched)
+    bar.close()
     return matched, solved
