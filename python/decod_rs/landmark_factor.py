@@ -14,14 +14,14 @@ analytic Jacobians (GTSAM's Pose3 chart, ``[w, v]``) are computed in Rust
 asks tens of thousands of times per run) and checked against central finite differences
 through ``gtsam.Pose3.retract`` in ``tests/test_graph.py``.
 
-The graph adds the factors between the same two poses as one ``gtsam.CustomFactor``
-(:func:`landmark_factor_group`): inside GTSAM's optimisers a Python factor is handed a copy
-of every variable at each call (the Values the optimiser owns are not Python objects), so a
-call costs in proportion to the graph and an iteration in proportion to the graph times its
-Python factors. A kilometre of tunnel (539 anchors, 2,805 landmark factors between 1,517
-pairs of anchors) took 78 ms an LM iteration, 17 s of a 41 s run; the 64-beam tunnels have
-five factors per pair of anchors (a ring is seen from several submaps, and consecutive
-submaps share most of them).
+The graph adds the factors between nearby poses as one ``gtsam.CustomFactor``
+(:func:`landmark_factor_group`, :data:`decod_rs.graph.LOOP_GROUP_KEYS`): inside GTSAM's
+optimisers a Python factor is handed a copy of every variable at each call (the Values the
+optimiser owns are not Python objects), so a call costs in proportion to the graph and an
+iteration in proportion to the graph times its Python factors. A kilometre of tunnel (539
+anchors, 2,805 landmark factors) took 78 ms an LM iteration, 12.5 s of a 41 s run, and 400 m
+of pipe (1,711 anchors, 2,784 factors) 1.5 s an iteration, 17.8 s of 75 s; grouped, 4.3 s
+and 7.0 s (``docs/measurements.md``, "Long logs").
 """
 
 from __future__ import annotations
@@ -145,38 +145,41 @@ def landmark_factor(
 
 @dataclass(frozen=True)
 class LandmarkTerm:
-    """One landmark factor's data for :func:`landmark_factor_group`: the query's and the
-    database's origin and axis (each in its own pose's body frame), the rotation of the
-    position rows (:func:`axis_frame`), the four sigmas of its diagonal noise and whether
-    its query pose is the group's second key (``swapped``)."""
+    """One landmark factor's data for :func:`landmark_factor_group`: its query's and its
+    database's pose keys, origins and axes (each in its own pose's body frame), the rotation
+    of the position rows (:func:`axis_frame`) and the four sigmas of its diagonal noise."""
 
+    key_i: int
+    key_j: int
     c_i: FloatArray
     a_i: FloatArray
     c_j: FloatArray
     a_j: FloatArray
     frame: FloatArray
     sigmas: FloatArray
-    swapped: bool = False
 
 
-def landmark_factor_group(
-    key_a: int, key_b: int, terms: Sequence[LandmarkTerm], huber_k: float
-) -> gtsam.CustomFactor:
-    """The landmark factors ``terms`` between poses ``key_a`` and ``key_b`` as one
-    ``gtsam.CustomFactor`` (module docs), each term robust on its own exactly as
-    :func:`landmark_factor` with ``Robust(Huber(huber_k), Diagonal(sigmas))`` is in GTSAM:
-    linearised, a term's whitened residual ``w`` and Jacobian are scaled by ``sqrt(k / |w|)``
-    beyond ``k`` (GTSAM's block reweighting); evaluated, its rows carry the Huber loss,
-    ``0.5 |row|^2 = rho(|w|)``. The factor's own noise model is the unit one, so the graph's
-    error, its linearisation and the optimiser's steps are those of the separate factors."""
-    if key_a == key_b:
-        raise ValueError(f"landmark_factor_group: the two keys must differ, got {key_a} twice")
+def landmark_factor_group(terms: Sequence[LandmarkTerm], huber_k: float) -> gtsam.CustomFactor:
+    """The landmark factors ``terms`` as one ``gtsam.CustomFactor`` on the poses they tie
+    (module docs), each term robust on its own exactly as :func:`landmark_factor` with
+    ``Robust(Huber(huber_k), Diagonal(sigmas))`` is in GTSAM: linearised, a term's whitened
+    residual ``w`` and Jacobian are scaled by ``sqrt(k / |w|)`` beyond ``k`` (GTSAM's block
+    reweighting); evaluated, its rows carry the Huber loss, ``0.5 |row|^2 = rho(|w|)``. The
+    factor's own noise model is the unit one, so the graph's error, its linearisation and the
+    optimiser's steps are those of the separate factors (the Jacobian blocks of the poses a
+    term does not tie are zero)."""
     if not terms:
         raise ValueError("landmark_factor_group: no terms")
+    keys = sorted({int(t.key_i) for t in terms} | {int(t.key_j) for t in terms})
+    where = {key: n for n, key in enumerate(keys)}
+    for t in terms:
+        if t.key_i == t.key_j:
+            raise ValueError(f"landmark_factor_group: a term ties pose {t.key_i} to itself")
     k = float(huber_k)
     data = [
         (
-            t.swapped,
+            where[int(t.key_i)],
+            where[int(t.key_j)],
             _f64(t.c_i).copy(),
             _f64(t.a_i).copy(),
             _f64(t.c_j).copy(),
@@ -190,16 +193,12 @@ def landmark_factor_group(
     residual = _core.landmark_residual
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, h: Any) -> FloatArray:
-        keys = this.keys()
-        ta = values.atPose3(keys[0]).matrix()
-        tb = values.atPose3(keys[1]).matrix()
+        poses = [values.atPose3(key).matrix() for key in this.keys()]
         jac = h is not None
         out = np.empty(size)
-        ha = np.zeros((size, 6)) if jac else None
-        hb = np.zeros((size, 6)) if jac else None
-        for n, (swapped, ci, ai, cj, aj, rot, inv) in enumerate(data):
-            ti, tj = (tb, ta) if swapped else (ta, tb)
-            res, hi, hj = residual(ti, tj, ci, ai, cj, aj, rot, jac)
+        blocks = [np.zeros((size, 6)) for _ in poses] if jac else []
+        for n, (i, j, ci, ai, cj, aj, rot, inv) in enumerate(data):
+            res, hi, hj = residual(poses[i], poses[j], ci, ai, cj, aj, rot, jac)
             w = res * inv
             norm = float(np.sqrt(w @ w))
             rows = slice(RESIDUAL_DIM * n, RESIDUAL_DIM * (n + 1))
@@ -210,12 +209,12 @@ def landmark_factor_group(
             else:
                 scale = float(np.sqrt(2.0 * k * norm - k * k)) / norm
             out[rows] = w * scale
-            if ha is not None and hb is not None and hi is not None and hj is not None:
-                jq, jd = hi * (inv * scale)[:, None], hj * (inv * scale)[:, None]
-                ha[rows], hb[rows] = (jd, jq) if swapped else (jq, jd)
+            if blocks and hi is not None and hj is not None:
+                blocks[i][rows] = hi * (inv * scale)[:, None]
+                blocks[j][rows] = hj * (inv * scale)[:, None]
         if h is not None:
-            h[0] = ha
-            h[1] = hb
+            for n, block in enumerate(blocks):
+                h[n] = block
         return out
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(size), [key_a, key_b], error)
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(size), keys, error)
