@@ -4,13 +4,14 @@ the `decod evaluate` command."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from decod_rs.cli import main
 from decod_rs.evaluate import evaluate_run, loop_metrics, tolerances_for
-from decod_rs.plots import plot_descriptor_pair
+from decod_rs.plots import DescriptorPair, plot_descriptor_pair, plot_descriptor_pairs
 from decod_rs.run_files import (
     LandmarkTable,
     LoopTable,
@@ -215,3 +216,26 @@ def test_descriptor_pair_plot(tmp_path):
     assert out.stat().st_size > 1000
     with pytest.raises(ValueError, match=r"database: expected .* same shape"):
         plot_descriptor_pair(tmp_path / "bad.png", d, mask, d, mask[:, :10])
+
+
+def test_descriptor_pairs_on_one_figure_are_the_figures_one_by_one(tmp_path):
+    # A run draws its four strongest pairs on one figure (faster): the same PNGs, byte for
+    # byte, as one figure each, including an unobserved pair and another grid size; a bad
+    # pair is refused before anything is drawn.
+    rng = np.random.default_rng(3)
+    pairs = []
+    for k, shape in enumerate([(16, 256), (16, 256), (16, 256), (8, 128)]):
+        d, m = rng.normal(size=shape) * 0.01 * (k + 1), rng.random(shape) > 0.4
+        if k == 2:
+            m[:] = False
+        pairs.append(DescriptorPair(tmp_path / f"b{k}.png", d, m, -d, ~m, f"pair {k}"))
+    batch = plot_descriptor_pairs(pairs)
+    for k, p in enumerate(pairs):
+        one = plot_descriptor_pair(
+            tmp_path / f"o{k}.png", p.query, p.query_mask, p.database, p.database_mask, p.title
+        )
+        assert one.read_bytes() == batch[k].read_bytes()
+    bad = DescriptorPair(tmp_path / "bad.png", pairs[0].query, pairs[0].query_mask[:, :3], 0, 0)
+    with pytest.raises(ValueError, match=r"query: expected .* same shape"):
+        plot_descriptor_pairs([replace(pairs[1], path=tmp_path / "x.png"), bad])
+    assert not (tmp_path / "x.png").exists()

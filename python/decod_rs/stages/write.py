@@ -302,7 +302,7 @@ def run_plots(
     unmeasured: list[Stretch],
     faces: Sequence[float] = (),
 ) -> None:
-    from decod_rs.plots import plot_descriptor_pair, plot_trajectories
+    from decod_rs.plots import DescriptorPair, plot_descriptor_pairs, plot_trajectories
 
     accepted = results  # the loops kept
     plot_trajectories(
@@ -316,17 +316,16 @@ def run_plots(
     )
     by_key = {(lm.submap_stamp, tuple(np.round(lm.origin, 6))): lm for lm in landmarks}
     # The strongest few accepted pairs: enough to inspect, not a file per loop.
+    pairs = []
     for k, r in enumerate(sorted(accepted, key=lambda r: -r.score)[:4]):
         q = by_key.get((r.query_stamp, tuple(np.round(r.query_origin, 6))))
         d = by_key.get((r.candidate_stamp, tuple(np.round(r.candidate_origin, 6))))
         if q is None or d is None:
             continue
-        plot_descriptor_pair(
-            out / f"descriptors_pair{k}.png",
-            q.descriptor,
-            q.mask,
-            d.descriptor,
-            d.mask,
-            title=f"query {r.query_stamp:.1f} s vs db {r.candidate_stamp:.1f} s: "
-            f"K={r.inliers}, S={r.score:.2f}, heading {r.heading_deg} deg",
+        title = (
+            f"query {r.query_stamp:.1f} s vs db {r.candidate_stamp:.1f} s: "
+            f"K={r.inliers}, S={r.score:.2f}, heading {r.heading_deg} deg"
         )
+        path = out / f"descriptors_pair{k}.png"
+        pairs.append(DescriptorPair(path, q.descriptor, q.mask, d.descriptor, d.mask, title))
+    plot_descriptor_pairs(pairs)
