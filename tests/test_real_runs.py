@@ -230,6 +230,12 @@ def test_cli_prints_the_damage_once_on_one_line(
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if "warning" in line]
     assert len(lines) == 1 and lines[0].startswith(f"decod run: warning: {cut}: truncated at byte")
+    # Every long stage shows its progress: the extraction, the queries, the graphs solved.
+    stages = {line.split()[0]: line for line in err.splitlines() if line[:1].isalpha()}
+    assert {"extract", "match", "optimise"} <= set(stages)
+    done = stages["match"].split()[2].split("/")
+    assert done[0] == done[1] and int(done[0]) > 0
+    assert " graphs " in stages["optimise"]
 
 
 def test_imu_samples_handed_on_give_the_same_submaps(sim: Path, tmp_path: Path) -> None:
