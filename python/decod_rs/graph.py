@@ -57,14 +57,15 @@ PRIOR_SIGMA = 1e-6
 
 LOOP_FACTORS = ("five_dof", "pose3")
 
+GRANULARITIES = ("submap", "scan")
+
 #: Landmark factors whose poses lie in the same two blocks of this many consecutive keys go
-#: into one GTSAM factor (:func:`_add_loops`). Inside GTSAM's optimisers each call of a
-#: Python factor copies every pose of the graph, so an iteration costs the graph's size
+#: into one GTSAM factor (:func:`add_landmark_factors`). Inside GTSAM's optimisers each call
+#: of a Python factor copies every pose of the graph, so an iteration costs the graph's size
 #: times its Python factors: 400 m of pipe (1,711 poses, 2,784 factors) took 1.5 s an LM
 #: iteration. A factor on up to 16 poses joins them in one clique of the elimination
 #: (96 unknowns), still small beside the calls it saves.
 LOOP_GROUP_KEYS = 8
-GRANULARITIES = ("submap", "scan")
 
 __all__ = [
     "GRANULARITIES",
@@ -72,6 +73,7 @@ __all__ = [
     "CorrectionResult",
     "GraphResult",
     "LoopConstraint",
+    "add_landmark_factors",
     "blend_fractions",
     "build_graph",
     "correct_trajectory",
@@ -299,11 +301,9 @@ def _add_loops(
     index: dict[int, int] | None = None,
 ) -> None:
     """The robust loop factors, on keys ``index[pose index]`` (identity if None): one
-    ``BetweenFactorPose3`` per loop for ``pose3``; for ``five_dof`` the loops whose two keys
-    fall in the same two blocks of ``LOOP_GROUP_KEYS`` consecutive keys as one factor
-    (:func:`~decod_rs.landmark_factor.landmark_factor_group`: the same error and steps as
-    one factor each, at a fraction of the calls)."""
-    groups: dict[tuple[int, int], list[LandmarkTerm]] = {}
+    ``BetweenFactorPose3`` per loop for ``pose3``, grouped 5-DoF ones for ``five_dof``
+    (:func:`add_landmark_factors`)."""
+    terms: list[LandmarkTerm] = []
     for lc in loops:
         qi, di = lc.query_index, lc.db_index
         ki, kj = (qi, di) if index is None else (index[qi], index[di])
@@ -321,10 +321,23 @@ def _add_loops(
             axis_frame(lc.query_axis),
             lc.sigmas(cfg),
         )
-        blocks = sorted((ki // LOOP_GROUP_KEYS, kj // LOOP_GROUP_KEYS))
-        groups.setdefault((blocks[0], blocks[1]), []).append(term)
-    for terms in groups.values():
-        graph.add(landmark_factor_group(terms, float(cfg.huber_k)))
+        terms.append(term)
+    add_landmark_factors(graph, terms, float(cfg.huber_k))
+
+
+def add_landmark_factors(
+    graph: gtsam.NonlinearFactorGraph, terms: Sequence[LandmarkTerm], huber_k: float
+) -> None:
+    """Landmark factors, Huber-robust each, those whose two keys fall in the same two blocks
+    of ``LOOP_GROUP_KEYS`` consecutive keys as one GTSAM factor
+    (:func:`~decod_rs.landmark_factor.landmark_factor_group`: the same error and steps as
+    one factor each, at a fraction of the calls): the run's graph and a re-inspection's."""
+    groups: dict[tuple[int, int], list[LandmarkTerm]] = {}
+    for t in terms:
+        blocks = sorted((t.key_i // LOOP_GROUP_KEYS, t.key_j // LOOP_GROUP_KEYS))
+        groups.setdefault((blocks[0], blocks[1]), []).append(t)
+    for group in groups.values():
+        graph.add(landmark_factor_group(group, huber_k))
 
 
 def build_graph(

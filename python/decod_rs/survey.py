@@ -42,9 +42,15 @@ from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.chainage import forward_course
 from decod_rs.config import Config
-from decod_rs.graph import PRIOR_SIGMA, loop_noise_sigmas, odometry_sigmas, propagate_to_scans
+from decod_rs.graph import (
+    PRIOR_SIGMA,
+    add_landmark_factors,
+    loop_noise_sigmas,
+    odometry_sigmas,
+    propagate_to_scans,
+)
 from decod_rs.joints import DIRECTION_SPAN_M, ties_one_boundary
-from decod_rs.landmark_factor import landmark_factor
+from decod_rs.landmark_factor import LandmarkTerm
 from decod_rs.matching import LandmarkDatabase
 from decod_rs.selection import (
     LoopEvidence,
@@ -381,10 +387,8 @@ def _graph(
             )
         )
     survey_key: dict[int, int] = {}
-    noise = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(cfg.graph.huber_k),
-        gtsam.noiseModel.Diagonal.Sigmas(loop_noise_sigmas(cfg.graph)),
-    )
+    sigmas = loop_noise_sigmas(cfg.graph)
+    terms = []
     pin = gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)
     for k in kept:
         r = results[k]
@@ -395,17 +399,19 @@ def _graph(
             values.insert(survey_key[a], pose)
             graph.add(gtsam.PriorFactorPose3(survey_key[a], pose, pin))
         lm = landmarks[k]
-        graph.add(
-            landmark_factor(
+        terms.append(
+            LandmarkTerm(
                 int(np.argmin(np.abs(anchor_stamps - lm.submap_stamp))),
                 survey_key[a],
                 np.asarray(lm.origin, dtype=np.float64),
                 np.asarray(lm.axis, dtype=np.float64),
                 effective_db_origin(r),
                 np.asarray(r.candidate_axis, dtype=np.float64),
-                noise,
+                np.eye(3),
+                sigmas,
             )
         )
+    add_landmark_factors(graph, terms, float(cfg.graph.huber_k))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(cfg.graph.max_iterations))
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
