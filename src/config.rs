@@ -152,6 +152,18 @@ pub struct ContourConfig {
     /// the circle's: measured 1.00 on a noisy circle and 0.003 on the test horseshoe
     /// (`contour::tests::polar_to_circle_residual_ratio_separates_the_models`).
     pub auto_polar_ratio: f64,
+    /// What is kept of a submap that fails the corridor test as a whole (a corridor end in
+    /// range; `crate::extract`): `"longest"`, its longest run of axial slices that pass the
+    /// test, where that run is a descriptor long; `"ends"`, all but the failing slices at
+    /// either end; `"off"`, all of it. `auto` measures the wall's relief on its probe windows
+    /// with `"ends"`: with `"longest"`, in a steel-arch tunnel whose windows straddle the
+    /// preset's gate, only the slices between two arches were kept and the relief read 0.096
+    /// m instead of 0.150 m (a replicate matrix log; its gate then rejected 14 of 32
+    /// submaps); with `"off"`, a window that sees the corridor's end reads its end face (a
+    /// 6 m shield lining 0.18 m instead of 0.02 m, where two of the four windows stood at
+    /// the start). Absent: `"longest"`.
+    #[serde(default = "default_corridor_span")]
+    pub corridor_span: String,
 }
 
 /// Boundary detection on the axial offset profile (paper §III-A, §IV-A.2).
@@ -428,6 +440,10 @@ pub struct MatchingConfig {
     /// `false` for ablation. Absent from a stored config: true.
     #[serde(default = "default_heading_from_odometry")]
     pub heading_from_odometry: bool,
+}
+
+fn default_corridor_span() -> String {
+    "longest".into()
 }
 
 fn default_heading_from_odometry() -> bool {
@@ -895,6 +911,11 @@ impl DecodConfig {
                 &["auto", "circle", "polar"][..],
             ),
             (
+                "contour.corridor_span",
+                &self.contour.corridor_span,
+                &["longest", "ends", "off"][..],
+            ),
+            (
                 "matching.normalisation",
                 &self.matching.normalisation,
                 &["five_variable", "scale_only", "none"][..],
@@ -969,6 +990,7 @@ fn tunnel_contour() -> ContourConfig {
         polar_bins: 180,
         polar_smoothing_bins: 1.5,
         auto_polar_ratio: 0.5,
+        corridor_span: default_corridor_span(),
     }
 }
 
@@ -1149,6 +1171,21 @@ mod tests {
             .map(|e| e.to_string())
             .unwrap_or_default();
         assert!(err.contains("submap.point_stride"), "{err}");
+        let toml = "[contour]\ncorridor_span = \"middle\"\n";
+        let err = DecodConfig::from_toml_str(toml, Preset::Tunnel)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default();
+        assert!(err.contains("contour.corridor_span"), "{err}");
+        // A config stored before `contour.corridor_span` cuts to the longest run, as then.
+        let mut stored = serde_json::to_value(DecodConfig::pipe()).unwrap_or_default();
+        let removed = stored
+            .get_mut("contour")
+            .and_then(|v| v.as_object_mut())
+            .and_then(|contour| contour.remove("corridor_span"));
+        assert!(removed.is_some());
+        let c = serde_json::from_value::<DecodConfig>(stored).map(|c| c.contour.corridor_span);
+        assert_eq!(c.ok().as_deref(), Some("longest"));
         // A config stored before the field keeps every point.
         let mut stored = serde_json::to_value(DecodConfig::tunnel()).unwrap_or_default();
         let removed = stored

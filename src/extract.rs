@@ -769,18 +769,24 @@ fn p90_abs_offset(chart: &[ChartPoint]) -> f64 {
     *v
 }
 
-/// The chart cut to the longest run of axial slices (descriptor rows) that each pass the
-/// corridor test (`contour.min_inlier_fraction` within `contour.inlier_distance_m`), when the
-/// whole cloud fails it and that run is at least one descriptor long; else the chart as it
-/// is (the contour test then decides). Not in the paper. A submap that sees the end of the
-/// corridor (a tunnel portal, a cap, a junction) fails as a whole: on the simulated shield
-/// tunnel with a 64-beam sensor the first and last four submaps of a 40 m run (80-89 % of
-/// points on the contour, the end cap behind the sensor) gave no landmark, so the last metres
-/// of the return had no loop.
+/// The chart cut to its corridor (`contour.corridor_span`) when the whole cloud fails the
+/// corridor test (`contour.min_inlier_fraction` within `contour.inlier_distance_m`) and
+/// what is kept is at least one descriptor long; else the chart as it is (the contour test
+/// then decides). Slices are descriptor rows along the axis; `"longest"` keeps the longest
+/// run of slices that each pass the test, `"ends"` drops the failing slices at either end
+/// only (`auto`'s relief probe: a wall with arches keeps them), `"off"` keeps everything.
+/// Not in the paper. A submap that sees the end of the corridor (a tunnel portal, a cap, a
+/// junction) fails as a whole: on the simulated shield tunnel with a 64-beam sensor the
+/// first and last four submaps of a 40 m run (80-89 % of points on the contour, the end cap
+/// behind the sensor) gave no landmark, so the last metres of the return had no loop.
 fn corridor_span(chart: Vec<ChartPoint>, cfg: &DecodConfig) -> Vec<ChartPoint> {
     let tol = cfg.contour.inlier_distance_m;
     let total = chart.iter().filter(|q| q.s.abs() <= tol).count();
-    if chart.is_empty() || total as f64 >= cfg.contour.min_inlier_fraction * chart.len() as f64 {
+    let mode = cfg.contour.corridor_span.as_str();
+    if mode == "off"
+        || chart.is_empty()
+        || total as f64 >= cfg.contour.min_inlier_fraction * chart.len() as f64
+    {
         return chart;
     }
     let slice = cfg.descriptor.half_length_m * 2.0 / cfg.descriptor.rows.max(1) as f64;
@@ -798,6 +804,24 @@ fn corridor_span(chart: Vec<ChartPoint>, cfg: &DecodConfig) -> Vec<ChartPoint> {
     }
     let ok =
         |k: usize| all[k] == 0 || good[k] as f64 >= cfg.contour.min_inlier_fraction * all[k] as f64;
+    let (lo, hi) = if mode == "ends" {
+        let lo = (0..n).find(|&k| ok(k)).unwrap_or(n);
+        let hi = (0..n).rev().find(|&k| ok(k)).map_or(lo, |k| k + 1);
+        (lo, hi.max(lo))
+    } else {
+        longest_passing_run(n, ok)
+    };
+    if ((hi - lo) as f64) * slice < 2.0 * cfg.descriptor.half_length_m {
+        return chart;
+    }
+    chart
+        .into_iter()
+        .filter(|q| (lo..hi).contains(&key(q.z)))
+        .collect()
+}
+
+/// The longest run `lo..hi` of slices `0..n` that each pass `ok` (the first if tied).
+fn longest_passing_run(n: usize, ok: impl Fn(usize) -> bool) -> (usize, usize) {
     let (mut best, mut run_start) = ((0, 0), 0);
     for k in 0..=n {
         if k == n || !ok(k) {
@@ -807,14 +831,7 @@ fn corridor_span(chart: Vec<ChartPoint>, cfg: &DecodConfig) -> Vec<ChartPoint> {
             run_start = k + 1;
         }
     }
-    if ((best.1 - best.0) as f64) * slice < 2.0 * cfg.descriptor.half_length_m {
-        return chart;
-    }
-    let (lo, hi) = (best.0, best.1);
-    chart
-        .into_iter()
-        .filter(|q| (lo..hi).contains(&key(q.z)))
-        .collect()
+    best
 }
 
 /// Counting sort of `chart` by `floor((z - z_min) / bucket_m)`. Returns the sorted points,
@@ -1138,6 +1155,58 @@ mod tests {
         let d = Vector3::from(stub.landmarks[0].origin_in_submap)
             - Vector3::from(open.landmarks[0].origin_in_submap);
         assert!(d.norm() < 2e-3, "{d:?}");
+    }
+
+    #[test]
+    fn the_relief_probe_measures_the_whole_wall_not_the_slices_that_pass() {
+        // The test pipe with three 12 cm rings standing 30 mm proud of the wall (beyond the
+        // pipe preset's 18 mm gate) at x = -0.9, 0 and 0.9: 12 % of its points, so the wall
+        // fails the corridor test (88 % < 90 %) and so does the cloud; and an end face at
+        // x = 1.5 with a fifth as many points as the wall.
+        let ringed: Vec<[f32; 3]> = pipe(100_000, Rotation3::identity(), Vector3::zeros())
+            .into_iter()
+            .map(|p| {
+                let x = p[0] as f64;
+                if [-0.9, 0.0, 0.9].iter().any(|&c| (x - c).abs() < 0.06) {
+                    let k = ((0.3 - 0.03) / 0.3) as f32;
+                    [p[0], p[1] * k, p[2] * k]
+                } else {
+                    p
+                }
+            })
+            .collect();
+        let face = pipe_with_end_face(1.4, 1.5, 20_000, Rotation3::identity())
+            .into_iter()
+            .filter(|p| p[0] == 1.5);
+        let pts: Vec<[f32; 3]> = ringed.iter().copied().chain(face).collect();
+        let extract = |span: &str| {
+            let mut cfg = DecodConfig::pipe();
+            cfg.contour.corridor_span = span.into();
+            let submap = Submap::from_points(1.0, pts.clone(), [0.0, 0.0, -1.0], [1.0, 0.0, 0.0])
+                .unwrap_or_else(|e| unreachable!("{e}"));
+            extract_landmarks(&submap, &cfg)
+        };
+        // The run's extraction keeps the longest stretch between two rings (0.78 m, more than
+        // the 0.48 m descriptor): its relief is the wall's noise alone.
+        let longest = extract("longest");
+        let d = &longest.diagnostics;
+        assert!(d.contour_p90_abs_offset_m < 0.005, "{d:?}");
+        // What auto's probe reads: the end face dropped, the rings kept, and the gate fails.
+        let ends = extract("ends");
+        let d = &ends.diagnostics;
+        assert!((0.02..0.04).contains(&d.contour_p90_abs_offset_m), "{d:?}");
+        assert!((d.contour_inlier_fraction - 0.88).abs() < 0.02, "{d:?}");
+        assert!(
+            matches!(
+                ends.rejections.first().map(|r| &r.reason),
+                Some(RejectionReason::ContourMisfit { .. })
+            ),
+            "{:?}",
+            ends.rejections
+        );
+        // Everything: the face's points are the tenth furthest from the contour.
+        let d = extract("off").diagnostics;
+        assert!(d.contour_p90_abs_offset_m > 0.05, "{d:?}");
     }
 
     #[test]

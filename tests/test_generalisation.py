@@ -12,12 +12,15 @@ the module runs in about two minutes on two cores.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
+from decod_rs import _core
+from decod_rs.autoscale import _probe_windows, _read_probe_scans, _toml, derive, probe_corridor
 from decod_rs.bench.matrix import registry_chainage_errors
 from decod_rs.commands.run import print_setup, read_report
 from decod_rs.evaluate import evaluate_run
@@ -163,6 +166,46 @@ def test_a_steel_arch_tunnel_seen_by_64_beams_keeps_its_submaps(tmp_path: Path) 
     fine, coarse = result["loops"]["fine"], result["loops"]["coarse"]
     assert fine["accepted"] >= 10 and fine["false_positives"] == 0, fine
     assert coarse["false_positives"] == 0, coarse
+
+
+def test_the_wall_relief_auto_measures_is_the_whole_walls(tmp_path: Path) -> None:
+    # The relief sets the contour gate (1.5 x the 90th percentile of the probes' offsets
+    # from the contour), and the probes used to be measured behind the preset's gate: a
+    # window that failed it was cut to its slices that passed, those without an arch, and
+    # read low. A replicate log of the matrix (seed 251, 16 beams pitched 20 deg) measured
+    # 0.096 m under its drifting odometry and 0.153 m on ground truth; its gate at 0.146 m
+    # then rejected 14 of its 32 submaps and the run closed no loop. Here arches 0.25 m
+    # wide (0.15 m in the matrix) put one probe window across the preset's gate.
+    sim = tmp_path / "sim"
+    simulate(
+        "horseshoe",
+        sim,
+        seed=33,
+        sensor="spin16",
+        length_m=15.0,
+        speed_mps=1.2,
+        mount_deg=(0.0, 20.0),
+        drift=0.0,
+        scene_overrides={"arch_width_m": 0.25},
+        progress=False,
+    )
+    probe, _ = probe_corridor(sim / "log", None, None, sim / "gt.tum", "/imu")
+    windows = _read_probe_scans(sim / "log", None, None, sim / "gt.tum", "/imu")[0]
+
+    def p90s(span: str) -> list[float]:
+        derived = derive(replace(probe, relief_m=0.0))  # the gate the relief is measured at
+        derived["contour"]["corridor_span"] = span
+        cfg = _core.resolve_config_json("tunnel", _toml(derived))
+        return [r.diagnostics.contour_p90_abs_offset_m for _, r in _probe_windows(windows, cfg)]
+
+    whole, cut = p90s("ends"), p90s("longest")
+    # The log does what it is here for: one window cut to its slices without an arch reads
+    # a third low (0.099 against 0.157 m).
+    assert min(c / w for c, w in zip(cut, whole, strict=True)) < 0.8, (cut, whole)
+    # The relief is the lower median of the whole windows' 90th percentiles (the window at
+    # the start sees the end face behind it): arches 0.2 m before the rock and overbreak.
+    assert probe.relief_m == pytest.approx(sorted(whole)[1], rel=1e-9), (probe, whole)
+    assert 0.1 < probe.relief_m < 0.4, probe
 
 
 def test_a_crawler_that_stops_along_the_way_is_corrected(tmp_path: Path) -> None:
