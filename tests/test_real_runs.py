@@ -230,9 +230,12 @@ def test_cli_prints_the_damage_once_on_one_line(
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if "warning" in line]
     assert len(lines) == 1 and lines[0].startswith(f"decod run: warning: {cut}: truncated at byte")
-    # Every long stage shows its progress: the extraction, the queries, the graphs solved.
+    # Every long stage shows its progress: the extraction, the track links, the queries, the
+    # graphs solved.
     stages = {line.split()[0]: line for line in err.splitlines() if line[:1].isalpha()}
-    assert {"extract", "match", "optimise"} <= set(stages)
+    assert {"extract", "link", "match", "optimise"} <= set(stages)
+    linked = stages["link"].split()[2].split("/")
+    assert linked[0] == linked[1] and int(linked[0]) > 0
     done = stages["match"].split()[2].split("/")
     assert done[0] == done[1] and int(done[0]) > 0
     assert " graphs " in stages["optimise"]
