@@ -19,8 +19,10 @@ every spatial parameter from what it measured:
    from steps 1-3, and ``relief`` is the lower median over them of the 90th percentile of
    the points' offsets from the fitted contour (over each whole window but the slices that
    fail the gate at its ends: :func:`_relief`). A lining or a pipe wall is one surface (relief
-   2-30 mm in the simulated hume, pe and shield corridors); steel arches 0.2 m before the
-   rock are two (relief 0.14-0.16 m for every sensor in the simulated horseshoe tunnel).
+   1-4 mm in the simulated hume and pe pipes, 13-60 mm in the shield linings, up to 93 mm
+   where the sensor stood still in two of the four windows); steel arches 0.2 m before the
+   rock are two (relief 0.13-0.15 m for every sensor and mount in the simulated 4-5 m
+   horseshoe tunnels of the matrix's three tiers, 0.23-0.24 m in the 10 m one).
 5. **Points per descriptor.** Per probe scan, the scan's own wall points (not voxel-filtered,
    bottom sector excluded) ahead of the sensor between ``z_near`` and the derived range,
    scaled to one descriptor length: how many points one scan puts into a boundary's
