@@ -159,9 +159,9 @@ pub struct ContourConfig {
     /// with `"ends"`: with `"longest"`, in a steel-arch tunnel whose windows straddle the
     /// preset's gate, only the slices between two arches were kept and the relief read 0.096
     /// m instead of 0.150 m (a replicate matrix log; its gate then rejected 14 of 32
-    /// submaps); with `"off"`, a window that sees the corridor's end reads its end face (a
-    /// 6 m shield lining 0.18 m instead of 0.02 m, where two of the four windows stood at
-    /// the start). Absent: `"longest"`.
+    /// submaps); with `"off"`, what is not the wall counts too: the end face behind the
+    /// sensor at a log's start (0.7-0.9 m), the floor around a sensor standing still (a 6 m
+    /// shield lining, 0.18 m instead of 0.02 m). Absent: `"longest"`.
     #[serde(default = "default_corridor_span")]
     pub corridor_span: String,
 }
