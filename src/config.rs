@@ -1178,35 +1178,38 @@ mod tests {
             .unwrap_or_default();
         assert!(err.contains("contour.corridor_span"), "{err}");
         // A config stored before `contour.corridor_span` cuts to the longest run, as then.
-        let mut stored = serde_json::to_value(DecodConfig::pipe()).unwrap_or_default();
-        let removed = stored
-            .get_mut("contour")
-            .and_then(|v| v.as_object_mut())
-            .and_then(|contour| contour.remove("corridor_span"));
+        let (removed, c) = stored_without(DecodConfig::pipe(), "contour", "corridor_span");
         assert!(removed.is_some());
-        let c = serde_json::from_value::<DecodConfig>(stored).map(|c| c.contour.corridor_span);
-        assert_eq!(c.ok().as_deref(), Some("longest"));
+        assert_eq!(
+            c.map(|c| c.contour.corridor_span).as_deref(),
+            Some("longest")
+        );
         // A config stored before the field keeps every point.
-        let mut stored = serde_json::to_value(DecodConfig::tunnel()).unwrap_or_default();
-        let removed = stored
-            .get_mut("submap")
-            .and_then(|v| v.as_object_mut())
-            .and_then(|submap| submap.remove("point_stride"));
+        let (removed, c) = stored_without(DecodConfig::tunnel(), "submap", "point_stride");
         assert!(removed.is_some());
-        let c = serde_json::from_value::<DecodConfig>(stored).map(|c| c.submap.point_stride);
-        assert_eq!(c.ok(), Some(1));
+        assert_eq!(c.map(|c| c.submap.point_stride), Some(1));
+    }
+
+    /// `cfg` as JSON without `section.field` (a config stored before the field): the value
+    /// removed and the config read back.
+    fn stored_without(
+        cfg: DecodConfig,
+        section: &str,
+        field: &str,
+    ) -> (Option<serde_json::Value>, Option<DecodConfig>) {
+        let mut stored = serde_json::to_value(cfg).unwrap_or_default();
+        let removed = stored
+            .get_mut(section)
+            .and_then(|v| v.as_object_mut())
+            .and_then(|s| s.remove(field));
+        (removed, serde_json::from_value(stored).ok())
     }
 
     #[test]
     fn a_config_stored_before_odometry_smoothing_smooths_jittery_odometry() {
-        let mut stored = serde_json::to_value(DecodConfig::pipe()).unwrap_or_default();
-        let removed = stored
-            .get_mut("submap")
-            .and_then(|v| v.as_object_mut())
-            .and_then(|submap| submap.remove("smooth_jittery_odometry"));
+        let (removed, c) = stored_without(DecodConfig::pipe(), "submap", "smooth_jittery_odometry");
         assert_eq!(removed, Some(serde_json::Value::Bool(true)));
-        let c = serde_json::from_value::<DecodConfig>(stored);
-        assert_eq!(c.ok().map(|c| c.submap.smooth_jittery_odometry), Some(true));
+        assert_eq!(c.map(|c| c.submap.smooth_jittery_odometry), Some(true));
         let off =
             DecodConfig::from_toml_str("[submap]\nsmooth_jittery_odometry = false\n", Preset::Pipe);
         assert_eq!(

@@ -807,7 +807,7 @@ fn corridor_span(chart: Vec<ChartPoint>, cfg: &DecodConfig) -> Vec<ChartPoint> {
     let (lo, hi) = if mode == "ends" {
         let lo = (0..n).find(|&k| ok(k)).unwrap_or(n);
         let hi = (0..n).rev().find(|&k| ok(k)).map_or(lo, |k| k + 1);
-        (lo, hi.max(lo))
+        (lo, hi)
     } else {
         longest_passing_run(n, ok)
     };

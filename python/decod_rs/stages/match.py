@@ -6,8 +6,9 @@ or every landmark querying all older ones (online), then the jointly consistent 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +34,7 @@ from decod_rs.tracks import (
 from decod_rs.tum import interpolate_poses
 
 FloatArray = NDArray[np.float64]
+T = TypeVar("T")
 
 
 #: In ``auto`` mode the log is split at the turnaround (the scan farthest from the start) when
@@ -109,20 +111,26 @@ def revisit_views(
     return np.asarray(again[np.where(closer, before, nearest)], dtype=bool)
 
 
+def _slices(items: list[T]) -> Iterator[list[T]]:
+    """``items`` in ``QUERY_CHUNKS`` consecutive slices (fewer for fewer items), for work
+    whose items are independent, reported slice by slice."""
+    step = max(1, -(-len(items) // QUERY_CHUNKS))
+    for start in range(0, len(items), step):
+        yield items[start : start + step]
+
+
 def _in_slices(
     confirm: Callable[[list[tuple[int, int]]], list[bool]], progress: bool
 ) -> Callable[[list[tuple[int, int]]], list[bool]]:
     """``confirm`` of the track links (:func:`decod_rs.sequential.same_boundary`) in
-    ``QUERY_CHUNKS`` slices with a progress bar: each link is compared on its own, so the
-    verdicts are those of one batch (the links of a kilometre of tunnel took 5 s without a
-    word; the first slice also prepares every view for the matcher)."""
+    :func:`_slices` with a progress bar: each link is compared on its own, so the verdicts
+    are those of one batch (the links of a kilometre of tunnel took 5 s without a word; the
+    first slice also prepares every view for the matcher)."""
 
     def run(links: list[tuple[int, int]]) -> list[bool]:
         bar = Progress("link", len(links) or None, enabled=progress, unit="pairs")
         verdicts: list[bool] = []
-        step = max(1, -(-len(links) // QUERY_CHUNKS))
-        for start in range(0, len(links), step):
-            chunk = links[start : start + step]
+        for chunk in _slices(links):
             verdicts.extend(confirm(chunk))
             bar.advance(len(chunk))
         bar.close()
@@ -168,9 +176,7 @@ def query_database(
         queries = [k for k, lm in enumerate(landmarks) if lm.submap_stamp > split]
         bar = Progress("match", len(queries) or None, enabled=progress)
         results = []
-        step = max(1, -(-len(queries) // QUERY_CHUNKS))
-        for start in range(0, len(queries), step):
-            chunk = queries[start : start + step]
+        for chunk in _slices(queries):
             results.extend(
                 db.query_batch_prepared(views, chunk, across_passes=True, directions=axes[chunk])
             )
