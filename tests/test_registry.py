@@ -12,11 +12,25 @@ import pytest
 from decod_rs.joints import joint_registry, standing_poses
 
 
-def _views(chainages: list[float]) -> list[Any]:
-    # joint_registry reads a landmark's stamp and origin (to find the loops' views) only.
+def _mask(observed: float, sides: int = 1) -> np.ndarray:
+    # A descriptor's observed cells (16 rows along the axis, 256 around), in every row:
+    # `observed` of the circumference in one arc, or in two opposite arcs (`sides=2`).
+    mask = np.zeros((16, 256), dtype=bool)
+    arc = round(observed * 256 / sides)
+    for k in range(sides):
+        mask[:, k * 128 : k * 128 + arc] = True
+    return mask
+
+
+def _views(
+    chainages: list[float], observed: list[float] | None = None, sides: int = 1
+) -> list[Any]:
+    # joint_registry reads a landmark's stamp and origin (to find the loops' views) and its
+    # descriptor's observed cells only.
+    seen = observed or [0.9] * len(chainages)
     return [
-        SimpleNamespace(submap_stamp=float(k), origin=np.array([c, 0.0, 0.0]))
-        for k, c in enumerate(chainages)
+        SimpleNamespace(submap_stamp=float(k), origin=np.array([c, 0.0, 0.0]), mask=_mask(o, sides))
+        for k, (c, o) in enumerate(zip(chainages, seen, strict=True))
     ]
 
 
@@ -105,3 +119,35 @@ def test_a_robot_standing_still_counts_once_in_a_joints_chainage() -> None:
     # One vote for the standing pose: the median of 3.35, 3.48, ..., 3.52 is 3.495.
     assert counted[0].chainage_m == pytest.approx(3.495) and counted[0].views == 65
     assert every_view[0].chainage_m == pytest.approx(3.35)
+
+
+def test_views_that_saw_a_sliver_of_the_wall_do_not_place_the_joint() -> None:
+    # A ring at 5.0 m in a 7 m shield seen by a forward sensor (held-out seed 277, uneven
+    # drift): two views saw the whole section (85 % of the circumference; the bottom sector
+    # is masked), two came from closer than the radius and saw 16-17 % of it, the floor's
+    # side, where the detection found a bolt pocket 28-36 cm on, and one saw 33 %. The last
+    # two came from one submap of the robot standing at the end (one pose), and the median
+    # of all five, that pose counted once, was 5.175 m: 17 cm long, 3.5 % of the chainage.
+    chain = np.array([5.05, 5.28, 5.36, 5.07, 4.61])
+    observed = [0.85, 0.17, 0.16, 0.86, 0.33]
+    lms = _views(chain.tolist(), observed)
+    tracks = np.arange(chain.size)
+    loops = [_loop(lms[k], lms[0]) for k in range(1, chain.size)]
+    poses = np.array([0, 1, 2, 3, 3])
+    joints, joint_of = joint_registry(lms, tracks, loops, chain, 3.0, 0.4, poses)
+    assert len(joints) == 1 and joint_of.tolist() == [0] * 5
+    # The one-sided slivers do not count; every view still belongs to the joint.
+    assert joints[0].chainage_m == pytest.approx(5.05) and joints[0].views == 5
+    # A joint that no view saw beyond a sliver (a sensor low in a flooded pipe) keeps them.
+    low = np.array([2.0, 2.1, 2.3])
+    partial, _ = joint_registry(
+        _views(low.tolist(), [0.2, 0.25, 0.1]), np.zeros(3, int), [], low, None, 0.4
+    )
+    assert partial[0].chainage_m == pytest.approx(2.1)
+    # A spinning sensor sees a ring beside it in its elevation band, on both walls: a
+    # sliver on two sides, its best view of the ring (the whole views from afar land on a
+    # band of bolt pockets 10-12 cm on). Those count.
+    beside = np.array([3.00, 3.01, 3.00, 3.11, 3.12])
+    both = _views(beside.tolist(), [0.25, 0.25, 0.25, 0.9, 0.9], sides=2)
+    spun, _ = joint_registry(both, np.zeros(5, int), [], beside, None, 0.4)
+    assert spun[0].chainage_m == pytest.approx(3.01)
