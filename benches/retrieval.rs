@@ -3,7 +3,7 @@
 //! coarse stage alone up to 100,000 signatures. Throughput is in landmarks per second
 //! (elements = database size). Target on two cores (DESIGN.md, issue 12): a query against
 //! 10,000 landmarks <= 5 ms. The memory per landmark is printed once (prepared data:
-//! descriptor, patch factor, masks, signatures).
+//! descriptor, patches, masks, signatures).
 //!
 //! The 10,000-landmark database repeats 2,000 distinct synthetic joints (views of one joint
 //! differ by noise and misalignment); the timing depends on the database size and the
@@ -11,7 +11,7 @@
 //! (`matching.retrieval_neighbour_extents`): one boundary per distinct joint, 1.5 m apart,
 //! its views within centimetres, so the short list is widened by the views of the rings
 //! beside its best as it is on a real survey. 100,000 prepared landmarks would take
-//! ~25 GB (see the printed bytes per landmark), so the largest size runs the coarse stage
+//! ~12.5 GB (see the printed bytes per landmark), so the largest size runs the coarse stage
 //! (the part that grows with the database) on its own.
 
 use std::hint::black_box;

@@ -121,7 +121,7 @@ class PairMemo:
         return self._views
 
     def release_views(self) -> None:
-        """Free the prepared views (277 KB a landmark); later comparisons prepare only the
+        """Free the prepared views (about 125 KB a landmark); later comparisons prepare only the
         landmarks they use."""
         self._views, self._released = None, True
 

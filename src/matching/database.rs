@@ -1,6 +1,6 @@
 //! The landmark database and queries (paper Algorithm 1, §IV-A protocol).
 //!
-//! Landmarks are prepared once when added (normalisation, keypoints, patch factor), so a
+//! Landmarks are prepared once when added (normalisation, keypoints, patches), so a
 //! query only runs the pairwise part, over all eligible entries in parallel (rayon).
 //!
 //! Eligibility (paper §IV-A): query and candidate submaps at least `min_time_separation_s`

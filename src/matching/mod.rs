@@ -25,6 +25,7 @@ pub mod retrieval;
 pub mod synthetic;
 pub mod verify;
 
+use std::cell::{Cell, OnceCell};
 use std::sync::{Arc, OnceLock};
 
 use serde::{Deserialize, Serialize};
@@ -34,7 +35,7 @@ use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
 
 pub use database::{LandmarkDatabase, QueryResult};
-use faer::Mat;
+use faer::{Mat, MatRef};
 pub use heading::Heading;
 use keypoints::Keypoint;
 use normalise::Normalisation;
@@ -109,7 +110,7 @@ fn one() -> f64 {
     1.0
 }
 
-/// Per-landmark work done once: normalised field, keypoints, patch factor.
+/// Per-landmark work done once: normalised field, keypoints, patches.
 #[derive(Clone, Debug)]
 pub struct PreparedLandmark {
     /// The landmark.
@@ -121,7 +122,7 @@ pub struct PreparedLandmark {
     flipped_bits: Vec<u64>,
     /// Keypoints (heading 0), strongest first.
     pub keypoints: Vec<Keypoint>,
-    /// Candidate GEMM factor of the keypoints' patches.
+    /// The keypoints' patches (compact; the GEMM factor is built from them per comparison).
     pub patches: CandidatePatches,
     /// Coarse signatures: for a query ([`Self::new_query`]) both headings at a few axial
     /// shifts ([`retrieval::query_signatures`]); for a database entry the first of those only
@@ -241,7 +242,7 @@ impl PreparedLandmark {
     }
 
     /// Approximate heap bytes held by this prepared landmark: the landmark (descriptor,
-    /// mask, normals, contour, scan stamps), the patch factor, masks and signatures.
+    /// mask, normals, contour, scan stamps), the patches, masks and signatures.
     pub fn heap_bytes(&self) -> usize {
         let l = &*self.landmark;
         let d = &l.descriptor;
@@ -249,7 +250,7 @@ impl PreparedLandmark {
         let landmark = 8 * (f64s + l.scan_stamps.len() + 2 * l.contour_e1e2_m.len())
             + d.observed.len()
             + std::mem::size_of::<Landmark>();
-        let m = &self.patches.matrix;
+        let m = &self.patches.values;
         let patches = 4 * m.nrows() * m.ncols();
         let bits = 8 * (self.observed_bits.len() + self.flipped_bits.len());
         let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
@@ -432,7 +433,13 @@ fn compare_prepared_pairs<'a>(
                 .filter_map(|&k| {
                     let c = get(pairs[k].1)?;
                     let mut pair = if same_heading {
-                        compare_heading(q, &side, c, Heading::Forward, cfg, shape)
+                        compare_heading(
+                            q,
+                            &side,
+                            &CandidateFactor::new(c, shape),
+                            Heading::Forward,
+                            cfg,
+                        )
                     } else {
                         compare_prepared(q, &side, c, cfg, shape)
                     };
@@ -505,10 +512,11 @@ pub fn compare_prepared_in(
     cfg: &MatchingConfig,
     shape: &PatchShape,
 ) -> PairResult {
+    let factor = CandidateFactor::new(c, shape);
     if let [only] = headings {
-        return compare_heading(q, side, c, *only, cfg, shape);
+        return compare_heading(q, side, &factor, *only, cfg);
     }
-    let [forward, reversed] = Heading::BOTH.map(|h| compare_heading(q, side, c, h, cfg, shape));
+    let [forward, reversed] = Heading::BOTH.map(|h| compare_heading(q, side, &factor, h, cfg));
     let key = |r: &PairResult| {
         (
             r.rejection != Some(Rejection::InsufficientOverlap),
@@ -530,11 +538,11 @@ pub fn compare_prepared_in(
 fn compare_heading(
     q: &PreparedLandmark,
     side: &QuerySide,
-    c: &PreparedLandmark,
+    factor: &CandidateFactor<'_>,
     heading: Heading,
     cfg: &MatchingConfig,
-    shape: &PatchShape,
 ) -> PairResult {
+    let (c, shape) = (factor.landmark, factor.shape);
     let (rows, cols) = q.grid();
     let q_bits = match heading {
         Heading::Forward => &q.observed_bits,
@@ -565,7 +573,7 @@ fn compare_heading(
         return result;
     }
     let qp = side.patches(q, shape, heading);
-    let dist = patches::distances(shape, qp, &c.patches, cfg.min_patch_overlap_fraction);
+    let dist = patches::distances(shape, qp, factor.get(), cfg.min_patch_overlap_fraction);
     let matches = keypoint_correspondences(q, c, &dist, heading);
     let consensus = if cfg.verification {
         verify::consensus(&matches, cols, cfg)
@@ -592,6 +600,49 @@ fn compare_heading(
         result.rejection = Some(Rejection::TooFewInliers);
     }
     result
+}
+
+thread_local! {
+    /// The buffer [`CandidateFactor`]s build their factor in, one per thread (a rayon worker
+    /// compares one pair at a time): reused, so a comparison allocates nothing for it.
+    static FACTOR_BUFFER: Cell<Vec<f32>> = const { Cell::new(Vec::new()) };
+}
+
+/// A candidate's GEMM factor ([`CandidatePatches::factor_into`]), built by the first
+/// heading whose comparison gets past the overlap test and shared by the other, in the
+/// thread's [`FACTOR_BUFFER`] (given back on drop).
+struct CandidateFactor<'a> {
+    landmark: &'a PreparedLandmark,
+    shape: &'a PatchShape,
+    buffer: OnceCell<Vec<f32>>,
+}
+
+impl<'a> CandidateFactor<'a> {
+    fn new(landmark: &'a PreparedLandmark, shape: &'a PatchShape) -> Self {
+        Self {
+            landmark,
+            shape,
+            buffer: OnceCell::new(),
+        }
+    }
+
+    fn get(&self) -> MatRef<'_, f32> {
+        let patches = &self.landmark.patches;
+        let buf = self.buffer.get_or_init(|| {
+            let mut buf = FACTOR_BUFFER.take();
+            patches.factor_into(self.shape, &mut buf);
+            buf
+        });
+        patches.factor_ref(self.shape, buf)
+    }
+}
+
+impl Drop for CandidateFactor<'_> {
+    fn drop(&mut self) {
+        if let Some(buf) = self.buffer.take() {
+            FACTOR_BUFFER.set(buf);
+        }
+    }
 }
 
 /// The mutual nearest keypoint pairs of the patch distances `dist` (query x candidate), the

@@ -22,10 +22,11 @@
 //! not local amplitude (which varies with incidence angle and range); flat patches
 //! (std below 1e-9 of the field's scale) keep their raw, mean-removed values.
 //!
-//! The candidate matrix depends only on the landmark, so it is built once when a landmark is
-//! added to a database; the query factors are cheap rearrangements of it. Under `h = 180` the
-//! query patches are flipped (flat reversal, see `heading.rs`) instead of the candidate's, so
-//! the database stores one matrix per landmark.
+//! The patches depend only on the landmark, so they are extracted once when a landmark is
+//! added to a database and kept compact (the values, `P x N`); the candidate matrix is built
+//! from them per comparison, the query factors once per query. Under `h = 180` the query
+//! patches are flipped (flat reversal, see `heading.rs`) instead of the candidate's, so the
+//! database stores one set of patches per landmark.
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatRef, Par};
@@ -172,36 +173,102 @@ impl PatchShape {
     }
 }
 
-/// The candidate factor `[m_b ; w m_b b^2 ; -2 m_b b]` of every keypoint of one landmark:
-/// a `3P x N` f32 matrix (column `j` = keypoint `j`).
+/// The candidate side of one landmark's keypoint patches, kept compact: the z-scored values
+/// `b` (`P x N` f32, column `j` = keypoint `j`, NaN where the cell is unobserved). The GEMM's
+/// factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) is built from it by [`Self::factor`] for
+/// the comparison that needs it, to the same bits as if it had been kept: a database holds
+/// a third of the floats it did (the factor was 96 % of a prepared landmark, 183 KB of 190
+/// with a 64-beam tunnel's 51 keypoints), and the build is a few microseconds beside the
+/// two GEMMs it feeds (`cargo bench --bench matcher`, `docs/measurements.md` "Speed").
 #[derive(Clone, Debug)]
 pub struct CandidatePatches {
-    /// `3P x N`.
-    pub matrix: Mat<f32>,
+    /// `P x N`, NaN where unobserved.
+    pub values: Mat<f32>,
 }
 
 impl CandidatePatches {
-    /// Builds the factor from per-keypoint `(values, mask)` patches.
+    /// Packs per-keypoint `(values, mask)` patches.
     pub fn new(shape: &PatchShape, patches: &[(Vec<f64>, Vec<bool>)]) -> Self {
         let p = shape.len();
-        let mut matrix = Mat::<f32>::zeros(3 * p, patches.len());
-        for (j, (values, mask)) in patches.iter().enumerate() {
-            for k in 0..p {
+        let mut values = Mat::<f32>::from_fn(p, patches.len(), |_, _| f32::NAN);
+        for (j, (v, mask)) in patches.iter().enumerate() {
+            for (k, out) in values.col_as_slice_mut(j).iter_mut().enumerate() {
                 if mask[k] {
-                    let b = values[k] as f32;
-                    matrix[(k, j)] = 1.0;
-                    matrix[(p + k, j)] = shape.weights[k] * b * b;
-                    matrix[(2 * p + k, j)] = -2.0 * b;
+                    *out = v[k] as f32;
                 }
             }
         }
-        Self { matrix }
+        Self { values }
     }
 
     /// Number of keypoints `N`.
     pub fn count(&self) -> usize {
-        self.matrix.ncols()
+        self.values.ncols()
     }
+
+    /// Builds the candidate factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) of
+    /// [`distances`] in `buf` (reused from comparison to comparison: a fresh 180-230 KB
+    /// matrix a pair cost a third of the pair's time in page faults and zeroing), for
+    /// [`Self::factor_ref`]. Every entry of the `3P` rows is written.
+    pub fn factor_into(&self, shape: &PatchShape, buf: &mut Vec<f32>) {
+        let p = shape.len();
+        buf.resize(factor_stride(p) * self.count(), 0.0);
+        pulp::Arch::new().dispatch(FillFactor {
+            values: &self.values,
+            weights: &shape.weights,
+            buf,
+        });
+    }
+
+    /// The factor [`Self::factor_into`] built in `buf`, as a `3P x N` matrix.
+    pub fn factor_ref<'b>(&self, shape: &PatchShape, buf: &'b [f32]) -> MatRef<'b, f32> {
+        let p = shape.len();
+        MatRef::from_column_major_slice_with_stride(buf, 3 * p, self.count(), factor_stride(p))
+    }
+
+    /// The factor as an owned matrix (tests, one-off comparisons).
+    pub fn factor(&self, shape: &PatchShape) -> Mat<f32> {
+        let mut buf = Vec::new();
+        self.factor_into(shape, &mut buf);
+        self.factor_ref(shape, &buf).to_owned()
+    }
+}
+
+/// The body of [`CandidatePatches::factor_into`]: branch-free (an unobserved cell's NaN
+/// masked to +0 bit by bit, as the zeros the factor was once initialised with), so that the
+/// compiler vectorises it at the CPU's width under [`pulp`] dispatch, as [`Ratio`].
+struct FillFactor<'a> {
+    values: &'a Mat<f32>,
+    weights: &'a [f32],
+    buf: &'a mut [f32],
+}
+
+impl pulp::WithSimd for FillFactor<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let p = self.weights.len();
+        let stride = factor_stride(p);
+        for (j, col) in self.buf.chunks_exact_mut(stride).enumerate() {
+            let (mask, rest) = col.split_at_mut(p);
+            let (square, rest) = rest.split_at_mut(p);
+            let cells = self.values.col_as_slice(j).iter().zip(self.weights);
+            let out = mask.iter_mut().zip(square.iter_mut()).zip(&mut rest[..p]);
+            for ((&b, &w), ((m, sq), lin)) in cells.zip(out) {
+                let keep = 0u32.wrapping_sub(u32::from(!b.is_nan()));
+                *m = f32::from_bits(1.0f32.to_bits() & keep);
+                *sq = f32::from_bits((w * b * b).to_bits() & keep);
+                *lin = f32::from_bits((-2.0 * b).to_bits() & keep);
+            }
+        }
+    }
+}
+
+/// Column stride of a factor in [`CandidatePatches::factor_into`]'s buffer: `3P` rounded up
+/// to 16 floats, so that every column starts 64 bytes after the last, as in faer's own.
+fn factor_stride(p: usize) -> usize {
+    (3 * p).next_multiple_of(16)
 }
 
 /// The query factors of one landmark under one heading: `[w m_a a^2 | m_a | w m_a a]`
@@ -216,19 +283,19 @@ pub struct QueryPatches {
 }
 
 impl QueryPatches {
-    /// Rearranges a candidate factor into query factors.
+    /// Rearranges a landmark's candidate patches into query factors.
     pub fn from_candidate(shape: &PatchShape, cand: &CandidatePatches, flipped: bool) -> Self {
         let p = shape.len();
         let n = cand.count();
         let mut numerator = Mat::<f32>::zeros(n, 3 * p);
         let mut denominator = Mat::<f32>::zeros(n, p);
         for i in 0..n {
+            let values = cand.values.col_as_slice(i);
             for k in 0..p {
                 // Source position: reversed patch under the flip; weights are symmetric.
                 let src = if flipped { p - 1 - k } else { k };
-                let m = cand.matrix[(src, i)];
-                if m > 0.0 {
-                    let a = -0.5 * cand.matrix[(2 * p + src, i)];
+                let a = values[src];
+                if !a.is_nan() {
                     let w = shape.weights[k];
                     numerator[(i, k)] = w * a * a;
                     numerator[(i, p + k)] = 1.0;
@@ -250,14 +317,15 @@ impl QueryPatches {
 }
 
 /// All patch distances `N_i x N_j` between query and candidate keypoints (two GEMMs);
-/// `+inf` where the mutually observed weight is below `min_overlap * sum w`.
+/// `+inf` where the mutually observed weight is below `min_overlap * sum w`. `cand`: the
+/// candidate's factor ([`CandidatePatches::factor`]).
 pub fn distances(
     shape: &PatchShape,
     query: &QueryPatches,
-    cand: &CandidatePatches,
+    cand: MatRef<'_, f32>,
     min_overlap: f64,
 ) -> Mat<f32> {
-    let (ni, nj, p) = (query.count(), cand.count(), shape.len());
+    let (ni, nj, p) = (query.count(), cand.ncols(), shape.len());
     let mut num = Mat::<f32>::zeros(ni, nj);
     let mut den = Mat::<f32>::zeros(ni, nj);
     if ni == 0 || nj == 0 {
@@ -267,11 +335,11 @@ pub fn distances(
         num.as_mut(),
         Accum::Replace,
         query.numerator.as_ref(),
-        cand.matrix.as_ref(),
+        cand,
         1.0f32,
         Par::Seq,
     );
-    let cand_mask: MatRef<'_, f32> = cand.matrix.as_ref().subrows(0, p);
+    let cand_mask: MatRef<'_, f32> = cand.subrows(0, p);
     matmul(
         den.as_mut(),
         Accum::Replace,

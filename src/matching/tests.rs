@@ -281,7 +281,12 @@ fn gemm_patch_distances_agree_with_brute_force() {
     for flipped in [false, true] {
         let own = patches::CandidatePatches::new(&shape, &pa);
         let query = patches::QueryPatches::from_candidate(&shape, &own, flipped);
-        let dist = patches::distances(&shape, &query, &cand, c.min_patch_overlap_fraction);
+        let dist = patches::distances(
+            &shape,
+            &query,
+            cand.factor(&shape).as_ref(),
+            c.min_patch_overlap_fraction,
+        );
         let mut finite = 0;
         for (i, qa) in pa.iter().enumerate() {
             let qa = if flipped {
@@ -306,6 +311,45 @@ fn gemm_patch_distances_agree_with_brute_force() {
             }
         }
         assert!(finite > 100);
+    }
+}
+
+#[test]
+fn candidate_factor_is_the_same_from_a_reused_buffer() {
+    // A comparison builds the candidate's factor in its thread's buffer, left over from the
+    // last pair: what that pair wrote (here NaN, more keypoints) must not reach this one.
+    let shape = patches::PatchShape::new(&cfg());
+    let p = shape.len();
+    let patch = |seed: usize| {
+        let values: Vec<f64> = (0..p).map(|k| ((k * 7 + seed) % 13) as f64 - 6.0).collect();
+        let mask: Vec<bool> = (0..p).map(|k| (k + seed) % 5 != 0).collect();
+        (values, mask)
+    };
+    let cand = patches::CandidatePatches::new(&shape, &[patch(1), patch(2), patch(3)]);
+    let fresh = cand.factor(&shape);
+    let mut buf = vec![f32::NAN; 10 * 3 * p];
+    cand.factor_into(&shape, &mut buf);
+    let reused = cand.factor_ref(&shape, &buf);
+    assert_eq!((reused.nrows(), reused.ncols()), (3 * p, 3));
+    for j in 0..3 {
+        let (values, mask) = patch(j + 1);
+        for k in 0..p {
+            let b = values[k] as f32;
+            let want = if mask[k] {
+                [1.0, shape.weights[k] * b * b, -2.0 * b]
+            } else {
+                [0.0; 3]
+            };
+            for (block, w) in want.iter().enumerate() {
+                let (got, again) = (fresh[(block * p + k, j)], reused[(block * p + k, j)]);
+                assert_eq!(got.to_bits(), w.to_bits(), "cell {k}, block {block}");
+                assert_eq!(
+                    again.to_bits(),
+                    w.to_bits(),
+                    "reused: cell {k}, block {block}"
+                );
+            }
+        }
     }
 }
 
