@@ -160,7 +160,11 @@ def _count_extractions(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
 
 
 def _comparable(report: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in report.items() if k not in ("timings_s", "realtime_factor", "sweep")}
+    return {
+        k: v
+        for k, v in report.items()
+        if k not in ("timings_s", "realtime_factor", "peak_memory_mb", "sweep")
+    }
 
 
 def test_sweep_extracts_each_log_once_and_matches_single_runs(

@@ -66,6 +66,10 @@ def test_hume_pipe_loops_are_precise_and_remove_the_drift(
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     assert report["counts"]["accepted"] == fine["accepted"]
     assert set(report["timings_s"]) >= {"extract", "match", "optimise", "write"}
+    # The process's peak memory in MB: a Python process holding numpy and gtsam takes 50 MB
+    # or more, this short log far less than the machine's 24 GB (a kilobyte read as a byte,
+    # or the reverse, lands outside either bound).
+    assert 50.0 < report["peak_memory_mb"] < 20_000.0
     assert "EDGE_DECOD_LANDMARK5" in (tmp_path / "run" / "graph.g2o").read_text()
     assert (tmp_path / "run" / "trajectory.png").stat().st_size > 10_000
     # The summary's registry line counts the rows of joints.csv that a loop confirmed.

@@ -31,7 +31,7 @@ import os
 import platform
 import sys
 
-__all__ = ["OFF_SWITCH", "keep_freed_memory"]
+__all__ = ["OFF_SWITCH", "keep_freed_memory", "peak_memory_mb"]
 
 #: ``DECOD_KEEP_FREED_MEMORY=0`` leaves glibc's defaults.
 OFF_SWITCH = "DECOD_KEEP_FREED_MEMORY"
@@ -70,3 +70,18 @@ def keep_freed_memory() -> bool:
         (M_TOP_PAD, TOP_PAD),
     )
     return all(mallopt(param, value) == 1 for param, value in settings)
+
+
+def peak_memory_mb() -> float | None:
+    """The process's peak resident memory so far, in MB (10^6 bytes; ``getrusage``'s
+    ``ru_maxrss``: kilobytes on Linux, bytes on macOS); None where the platform does not
+    say (Windows). For ``decod run`` the run's own; in a batch worker or a program that
+    imports ``decod_rs``, the process's over everything it ran. ``report.json``
+    ``peak_memory_mb``: what a log needs, which grows with it (``docs/measurements.md``,
+    "Long logs": 1.29 GB for 400 m of pipe, 33 minutes of log)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    peak = float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+    return peak / 1e6 if sys.platform == "darwin" else peak * 1024 / 1e6

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
+from decod_rs.allocator import peak_memory_mb
 from decod_rs.map_quality import Consistency, map_consistency, outbound_path
 from decod_rs.maps import PASS_NAMES, MapCloud, anchor_poses, render_map, write_map_ply
 from decod_rs.recording import RecordingInput, RecordingJob
@@ -287,6 +288,7 @@ def _update_report(
     report["map"] = section
     report["rerun"] = recorded
     report.setdefault("timings_s", {}).update(timings)
+    report["peak_memory_mb"] = peak_memory_mb()  # this process's, after the figures
     total = sum(report["timings_s"].values())
     if total > 0 and report.get("log_duration_s"):
         report["realtime_factor"] = report["log_duration_s"] / total

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from decod_rs.allocator import peak_memory_mb
 from decod_rs.config import MODES, PRESETS
 from decod_rs.recording import require_rerun
 
@@ -120,7 +121,9 @@ def print_summary(summary: RunSummary) -> None:
         f"matching       {summary.mode} mode, {summary.queries} queries, "
         f"{summary.accepted} accepted{revisit}"
     )
-    print(f"time           {stages}; {summary.realtime_factor:.0f}x real time")
+    peak = peak_memory_mb()
+    memory = "" if peak is None else f", peak memory {peak:,.0f} MB"
+    print(f"time           {stages}; {summary.realtime_factor:.0f}x real time{memory}")
     print(f"output         {summary.out_dir}")
 
 

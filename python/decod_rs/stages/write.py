@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from decod_rs import _core
 from decod_rs._core import Landmark, QueryResult
 from decod_rs.aliasing import aliasing
+from decod_rs.allocator import peak_memory_mb
 from decod_rs.config import Config
 from decod_rs.graph import CorrectionResult, LoopConstraint
 from decod_rs.graph_export import write_g2o, write_graph_json
@@ -283,6 +284,7 @@ def run_report(
         "timings_s": summary.timings_s,
         "log_duration_s": summary.log_duration_s,
         "realtime_factor": summary.realtime_factor,
+        "peak_memory_mb": peak_memory_mb(),
         "config": cfg.to_dict(),
         "versions": {
             "decod": _core.__version__,
