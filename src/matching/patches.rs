@@ -175,11 +175,13 @@ impl PatchShape {
 
 /// The candidate side of one landmark's keypoint patches, kept compact: the z-scored values
 /// `b` (`P x N` f32, column `j` = keypoint `j`, NaN where the cell is unobserved). The GEMM's
-/// factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) is built from it by [`Self::factor`] for
-/// the comparison that needs it, to the same bits as if it had been kept: a database holds
-/// a third of the floats it did (the factor was 96 % of a prepared landmark, 183 KB of 190
-/// with a 64-beam tunnel's 51 keypoints), and the build is a few microseconds beside the
-/// two GEMMs it feeds (`cargo bench --bench matcher`, `docs/measurements.md` "Speed").
+/// factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) is built from it by
+/// [`Self::factor_into`] for the comparison that needs it, to the same bits as if it had been
+/// kept: a database holds a third of the floats it did (the factor was 96 % of a prepared
+/// landmark, 183 KB of 190 with a 64-beam tunnel's 51 keypoints; 277 -> 125 KB a landmark
+/// with the landmark itself), and the build takes 0.6 % of a pair's perf samples against
+/// 13.4 % for the two GEMMs it feeds (`docs/decisions.md`, "Coarse retrieval for large
+/// databases").
 #[derive(Clone, Debug)]
 pub struct CandidatePatches {
     /// `P x N`, NaN where unobserved.
@@ -272,8 +274,8 @@ fn factor_stride(p: usize) -> usize {
 }
 
 /// The query factors of one landmark under one heading: `[w m_a a^2 | m_a | w m_a a]`
-/// (`N x 3P`, numerator) and `[w m_a]` (`N x P`, denominator), built from its candidate
-/// factor; `flipped` reverses each patch (heading 180°).
+/// (`N x 3P`, numerator) and `[w m_a]` (`N x P`, denominator), built from its patches
+/// ([`CandidatePatches`]); `flipped` reverses each patch (heading 180°).
 #[derive(Clone, Debug)]
 pub struct QueryPatches {
     /// `N x 3P`.
