@@ -605,7 +605,7 @@ fn compare_heading(
 thread_local! {
     /// The buffer [`CandidateFactor`]s build their factor in, one per thread (a rayon worker
     /// compares one pair at a time): reused, so a comparison allocates nothing for it.
-    static FACTOR_BUFFER: Cell<Vec<f32>> = const { Cell::new(Vec::new()) };
+    static FACTOR_BUFFER: Cell<Option<Mat<f32>>> = const { Cell::new(None) };
 }
 
 /// A candidate's GEMM factor ([`CandidatePatches::factor_into`]), built by the first
@@ -614,7 +614,7 @@ thread_local! {
 struct CandidateFactor<'a> {
     landmark: &'a PreparedLandmark,
     shape: &'a PatchShape,
-    buffer: OnceCell<Vec<f32>>,
+    buffer: OnceCell<Mat<f32>>,
 }
 
 impl<'a> CandidateFactor<'a> {
@@ -627,20 +627,20 @@ impl<'a> CandidateFactor<'a> {
     }
 
     fn get(&self) -> MatRef<'_, f32> {
-        let patches = &self.landmark.patches;
-        let buf = self.buffer.get_or_init(|| {
-            let mut buf = FACTOR_BUFFER.take();
-            patches.factor_into(self.shape, &mut buf);
-            buf
-        });
-        patches.factor_ref(self.shape, buf)
+        self.buffer
+            .get_or_init(|| {
+                let mut buf = FACTOR_BUFFER.take().unwrap_or_else(Mat::new);
+                self.landmark.patches.factor_into(self.shape, &mut buf);
+                buf
+            })
+            .as_ref()
     }
 }
 
 impl Drop for CandidateFactor<'_> {
     fn drop(&mut self) {
         if let Some(buf) = self.buffer.take() {
-            FACTOR_BUFFER.set(buf);
+            FACTOR_BUFFER.set(Some(buf));
         }
     }
 }

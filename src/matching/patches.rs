@@ -179,8 +179,9 @@ impl PatchShape {
 /// [`Self::factor_into`] for the comparison that needs it, to the same bits as if it had been
 /// kept: a database holds a third of the floats it did (the factor was 96 % of a prepared
 /// landmark, 183 KB of 190 with a 64-beam tunnel's 51 keypoints; 277 -> 125 KB a landmark
-/// with the landmark itself), and the build takes 0.6 % of a pair's perf samples against
-/// 13.4 % for the two GEMMs it feeds (`docs/decisions.md`, "Coarse retrieval for large
+/// with the landmark itself), for about 10 us a pair: `cargo bench --bench matcher`
+/// `pair_prepared` 149 -> 159 us (both headings, best of four interleaved runs),
+/// `query_20_candidates` 3.12 -> 3.20 ms (`docs/decisions.md`, "Coarse retrieval for large
 /// databases").
 #[derive(Clone, Debug)]
 pub struct CandidatePatches {
@@ -209,12 +210,11 @@ impl CandidatePatches {
     }
 
     /// Builds the candidate factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) of
-    /// [`distances`] in `buf` (reused from comparison to comparison: a fresh 180-230 KB
-    /// matrix a pair cost a third of the pair's time in page faults and zeroing), for
-    /// [`Self::factor_ref`]. Every entry of the `3P` rows is written.
-    pub fn factor_into(&self, shape: &PatchShape, buf: &mut Vec<f32>) {
-        let p = shape.len();
-        buf.resize(factor_stride(p) * self.count(), 0.0);
+    /// [`distances`] in `buf`, resized to it (reused from comparison to comparison: a fresh
+    /// 180-230 KB matrix a pair cost a third of the pair's time in page faults and zeroing).
+    /// Every entry is written.
+    pub fn factor_into(&self, shape: &PatchShape, buf: &mut Mat<f32>) {
+        buf.resize_with(3 * shape.len(), self.count(), |_, _| 0.0);
         pulp::Arch::new().dispatch(FillFactor {
             values: &self.values,
             weights: &shape.weights,
@@ -222,17 +222,11 @@ impl CandidatePatches {
         });
     }
 
-    /// The factor [`Self::factor_into`] built in `buf`, as a `3P x N` matrix.
-    pub fn factor_ref<'b>(&self, shape: &PatchShape, buf: &'b [f32]) -> MatRef<'b, f32> {
-        let p = shape.len();
-        MatRef::from_column_major_slice_with_stride(buf, 3 * p, self.count(), factor_stride(p))
-    }
-
     /// The factor as an owned matrix (tests, one-off comparisons).
     pub fn factor(&self, shape: &PatchShape) -> Mat<f32> {
-        let mut buf = Vec::new();
+        let mut buf = Mat::new();
         self.factor_into(shape, &mut buf);
-        self.factor_ref(shape, &buf).to_owned()
+        buf
     }
 }
 
@@ -242,7 +236,7 @@ impl CandidatePatches {
 struct FillFactor<'a> {
     values: &'a Mat<f32>,
     weights: &'a [f32],
-    buf: &'a mut [f32],
+    buf: &'a mut Mat<f32>,
 }
 
 impl pulp::WithSimd for FillFactor<'_> {
@@ -251,12 +245,11 @@ impl pulp::WithSimd for FillFactor<'_> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
         let p = self.weights.len();
-        let stride = factor_stride(p);
-        for (j, col) in self.buf.chunks_exact_mut(stride).enumerate() {
-            let (mask, rest) = col.split_at_mut(p);
+        for j in 0..self.buf.ncols() {
+            let (mask, rest) = self.buf.col_as_slice_mut(j).split_at_mut(p);
             let (square, rest) = rest.split_at_mut(p);
             let cells = self.values.col_as_slice(j).iter().zip(self.weights);
-            let out = mask.iter_mut().zip(square.iter_mut()).zip(&mut rest[..p]);
+            let out = mask.iter_mut().zip(square.iter_mut()).zip(rest.iter_mut());
             for ((&b, &w), ((m, sq), lin)) in cells.zip(out) {
                 let keep = 0u32.wrapping_sub(u32::from(!b.is_nan()));
                 *m = f32::from_bits(1.0f32.to_bits() & keep);
@@ -265,12 +258,6 @@ impl pulp::WithSimd for FillFactor<'_> {
             }
         }
     }
-}
-
-/// Column stride of a factor in [`CandidatePatches::factor_into`]'s buffer: `3P` rounded up
-/// to 16 floats, so that every column starts 64 bytes after the last, as in faer's own.
-fn factor_stride(p: usize) -> usize {
-    (3 * p).next_multiple_of(16)
 }
 
 /// The query factors of one landmark under one heading: `[w m_a a^2 | m_a | w m_a a]`

@@ -327,9 +327,8 @@ fn candidate_factor_is_the_same_from_a_reused_buffer() {
     };
     let cand = patches::CandidatePatches::new(&shape, &[patch(1), patch(2), patch(3)]);
     let fresh = cand.factor(&shape);
-    let mut buf = vec![f32::NAN; 10 * 3 * p];
-    cand.factor_into(&shape, &mut buf);
-    let reused = cand.factor_ref(&shape, &buf);
+    let mut reused = Mat::<f32>::from_fn(3 * p, 10, |_, _| f32::NAN);
+    cand.factor_into(&shape, &mut reused);
     assert_eq!((reused.nrows(), reused.ncols()), (3 * p, 3));
     for j in 0..3 {
         let (values, mask) = patch(j + 1);
