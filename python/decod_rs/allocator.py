@@ -21,6 +21,9 @@ imports ``decod_rs`` decides for itself (call it, or set the ``MALLOC_TRIM_THRES
 ``MALLOC_TOP_PAD_`` environment variables). Elsewhere than glibc (macOS, musl) it does
 nothing, and ``DECOD_KEEP_FREED_MEMORY=0`` turns it off (glibc's defaults, for comparison:
 ``python -m decod_rs.bench.allocator`` measures both).
+
+:func:`peak_memory_mb` reports what the process has held at most (``report.json``
+``peak_memory_mb``, printed by ``decod run``), the figure this tuning trades against.
 """
 
 from __future__ import annotations
