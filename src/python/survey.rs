@@ -1,6 +1,7 @@
 //! Bindings for the survey file (`decod::survey`): write and read, header as JSON text.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use pyo3::prelude::*;
 
@@ -9,7 +10,7 @@ use super::errors::to_py_err;
 use super::landmark::PyLandmark;
 use crate::error::DecodError;
 use crate::landmark::Landmark;
-use crate::survey::{FORMAT_VERSION, Survey};
+use crate::survey::{self, FORMAT_VERSION, Survey};
 
 /// Writes a survey: `header_json` (a JSON object with `joint_ids`, one per landmark) and the
 /// landmarks, in the versioned binary format of `decod::survey`.
@@ -22,8 +23,9 @@ fn write_survey(
 ) -> PyResult<()> {
     let header = serde_json::from_str(header_json)
         .map_err(|e| to_py_err(DecodError::invalid("header_json", e.to_string())))?;
-    let landmarks: Vec<Landmark> = landmarks.iter().map(|l| (*l.inner).clone()).collect();
-    detached(py, move || Survey { header, landmarks }.write(&path))
+    // The run's landmarks are shared with the writer, not copied (a long log's are 0.2 GB).
+    let landmarks: Vec<Arc<Landmark>> = landmarks.iter().map(|l| l.inner.clone()).collect();
+    detached(py, move || survey::write_survey(&path, &header, &landmarks))
 }
 
 /// Reads a survey: `(header_json, landmarks)`; `DatabaseError` for another format version,
