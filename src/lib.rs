@@ -26,6 +26,7 @@ pub mod landmark_factor;
 pub mod map;
 pub mod map_quality;
 pub mod matching;
+pub mod park;
 pub mod pipeline;
 mod radix;
 pub mod scan;

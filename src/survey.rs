@@ -50,7 +50,7 @@ pub struct Survey {
     pub landmarks: Vec<Landmark>,
 }
 
-fn err(path: &Path, reason: impl Into<String>) -> DecodError {
+pub(crate) fn err(path: &Path, reason: impl Into<String>) -> DecodError {
     DecodError::Database {
         path: path.to_path_buf(),
         reason: reason.into(),
@@ -69,7 +69,15 @@ fn put_u32(out: &mut Vec<u8>, value: usize, path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path) -> Result<()> {
+/// How a record stores the descriptor's offsets: as the survey format says (f32), or exactly
+/// (f64: landmarks a run sets aside and takes back, `crate::park`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Offsets {
+    F32,
+    F64,
+}
+
+fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path, offsets: Offsets) -> Result<()> {
     let d = &l.descriptor;
     let mut fixed = vec![l.submap_stamp];
     for v in [
@@ -91,8 +99,13 @@ fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path) -> Result<()> {
     }
     put_f64s(out, &d.normal_e1);
     put_f64s(out, &d.normal_e2);
-    for v in &d.offsets_m {
-        out.extend_from_slice(&(*v as f32).to_le_bytes());
+    match offsets {
+        Offsets::F32 => {
+            for v in &d.offsets_m {
+                out.extend_from_slice(&(*v as f32).to_le_bytes());
+            }
+        }
+        Offsets::F64 => put_f64s(out, &d.offsets_m),
     }
     let mut bits = vec![0u8; d.observed.len().div_ceil(8)];
     for (i, _) in d.observed.iter().enumerate().filter(|(_, o)| **o) {
@@ -109,12 +122,11 @@ fn partial_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
-/// Writes a survey of `header` and `landmarks` (module docs) without copying them: each
-/// landmark is encoded into one reused buffer and streamed to the file, which appears under
-/// `path` only once complete (written beside it, then renamed). `header` must be a JSON
-/// object whose `joint_ids` hold one id per landmark. A run's write stage held a copy of
-/// every landmark and the whole file in memory (0.35 GB of a 400 m pipe's 5,376 landmarks,
-/// the run's peak: `docs/measurements.md`, "Long logs").
+/// Writes a survey of `header` and `landmarks` (module docs) without copying them
+/// ([`write_records`]). `header` must be a JSON object whose `joint_ids` hold one id per
+/// landmark. A run's write stage held a copy of every landmark and the whole file in memory
+/// (0.35 GB of a 400 m pipe's 5,376 landmarks, the run's peak: `docs/measurements.md`, "Long
+/// logs").
 pub fn write_survey<L: Borrow<Landmark>>(
     path: &Path,
     header: &Value,
@@ -130,10 +142,44 @@ pub fn write_survey<L: Borrow<Landmark>>(
     } else {
         return Err(err(path, "header must be a JSON object"));
     }
+    let text = serde_json::to_vec(&header).map_err(|e| err(path, e.to_string()))?;
+    let mut head = Vec::with_capacity(text.len() + 64);
+    head.extend_from_slice(MAGIC);
+    head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    head.extend_from_slice(&(text.len() as u64).to_le_bytes());
+    head.extend_from_slice(&text);
+    let format = Records {
+        offsets: Offsets::F32,
+        framed: false,
+        durable: true,
+    };
+    write_records(path, &head, landmarks, format)
+}
+
+/// How [`write_records`] writes its records.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Records {
+    /// The offsets' precision.
+    pub offsets: Offsets,
+    /// Each record preceded by its length in bytes (u64), so that a reader can take them
+    /// one at a time.
+    pub framed: bool,
+    /// Synced to the disk before it is renamed (a file kept after the run).
+    pub durable: bool,
+}
+
+/// Writes `head`, then one record per landmark (validated first: one that fails is refused
+/// before a byte is written), each encoded into one reused buffer and streamed to the file,
+/// which appears under `path` only once complete (written beside it, then renamed).
+pub(crate) fn write_records<L: Borrow<Landmark>>(
+    path: &Path,
+    head: &[u8],
+    landmarks: &[L],
+    format: Records,
+) -> Result<()> {
     for l in landmarks {
         l.borrow().validate()?;
     }
-    let text = serde_json::to_vec(&header).map_err(|e| err(path, e.to_string()))?;
     let partial = partial_path(path);
     let io = |source| DecodError::Io {
         path: path.to_path_buf(),
@@ -141,21 +187,21 @@ pub fn write_survey<L: Borrow<Landmark>>(
     };
     let written = (|| -> Result<()> {
         let mut file = BufWriter::new(File::create(&partial).map_err(io)?);
-        let mut out = Vec::with_capacity(text.len() + 64);
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        out.extend_from_slice(&(text.len() as u64).to_le_bytes());
-        out.extend_from_slice(&text);
-        file.write_all(&out).map_err(io)?;
+        file.write_all(head).map_err(io)?;
+        let mut out = Vec::new();
         for l in landmarks {
             out.clear();
-            encode_landmark(&mut out, l.borrow(), path)?;
+            encode_landmark(&mut out, l.borrow(), path, format.offsets)?;
+            if format.framed {
+                file.write_all(&(out.len() as u64).to_le_bytes())
+                    .map_err(io)?;
+            }
             file.write_all(&out).map_err(io)?;
         }
-        file.into_inner()
-            .map_err(|e| io(e.into_error()))?
-            .sync_all()
-            .map_err(io)?;
+        let file = file.into_inner().map_err(|e| io(e.into_error()))?;
+        if format.durable {
+            file.sync_all().map_err(io)?;
+        }
         std::fs::rename(&partial, path).map_err(io)
     })();
     if written.is_err() {
@@ -178,11 +224,7 @@ impl Survey {
             path: path.to_path_buf(),
             source,
         })?;
-        let mut r = Reader {
-            bytes: &bytes,
-            at: 0,
-            path: path.to_path_buf(),
-        };
+        let mut r = Reader::new(&bytes, path);
         if r.take(8).ok() != Some(&MAGIC[..]) {
             return Err(err(path, "not a decod survey (no DECODSVY magic)"));
         }
@@ -224,7 +266,7 @@ impl Survey {
         let mut landmarks = Vec::with_capacity(count as usize);
         for k in 0..count as usize {
             let l = r
-                .landmark()
+                .landmark(Offsets::F32)
                 .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
             l.validate()
                 .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
@@ -241,18 +283,27 @@ impl Survey {
 }
 
 /// A bounds-checked little-endian cursor.
-struct Reader<'a> {
+pub(crate) struct Reader<'a> {
     bytes: &'a [u8],
     at: usize,
     path: PathBuf,
 }
 
 impl<'a> Reader<'a> {
-    fn left(&self) -> usize {
+    /// A cursor at the start of `bytes`, read from `path` (named in its errors).
+    pub(crate) fn new(bytes: &'a [u8], path: &Path) -> Self {
+        Self {
+            bytes,
+            at: 0,
+            path: path.to_path_buf(),
+        }
+    }
+
+    pub(crate) fn left(&self) -> usize {
         self.bytes.len() - self.at
     }
 
-    fn take(&mut self, n: usize) -> Result<&'a [u8]> {
+    pub(crate) fn take(&mut self, n: usize) -> Result<&'a [u8]> {
         if n > self.left() {
             return Err(err(
                 &self.path,
@@ -270,11 +321,11 @@ impl<'a> Reader<'a> {
         Ok(a)
     }
 
-    fn u32(&mut self) -> Result<u32> {
+    pub(crate) fn u32(&mut self) -> Result<u32> {
         Ok(u32::from_le_bytes(self.array()?))
     }
 
-    fn u64(&mut self) -> Result<u64> {
+    pub(crate) fn u64(&mut self) -> Result<u64> {
         Ok(u64::from_le_bytes(self.array()?))
     }
 
@@ -287,7 +338,7 @@ impl<'a> Reader<'a> {
             .collect())
     }
 
-    fn landmark(&mut self) -> Result<Landmark> {
+    pub(crate) fn landmark(&mut self, offsets: Offsets) -> Result<Landmark> {
         let f = self.f64s(17)?;
         let v3 = |i: usize| [f[i], f[i + 1], f[i + 2]];
         let (rows, cols) = (self.u32()? as usize, self.u32()? as usize);
@@ -305,11 +356,14 @@ impl<'a> Reader<'a> {
         let points = self.f64s(2 * contour)?;
         let normal_e1 = self.f64s(cols)?;
         let normal_e2 = self.f64s(cols)?;
-        let offsets_m = self
-            .take(4 * cells)?
-            .chunks_exact(4)
-            .map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
-            .collect();
+        let offsets_m = match offsets {
+            Offsets::F32 => self
+                .take(4 * cells)?
+                .chunks_exact(4)
+                .map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
+                .collect(),
+            Offsets::F64 => self.f64s(cells)?,
+        };
         let bits = self.take(cells.div_ceil(8))?;
         let observed = (0..cells)
             .map(|i| bits[i / 8] & (1 << (i % 8)) != 0)

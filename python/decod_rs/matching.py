@@ -112,6 +112,12 @@ class PairMemo:
         self._done: dict[tuple[int, int], PairResult] = {}
 
     @property
+    def landmarks(self) -> list[Landmark]:
+        """The landmarks compared: the list itself (:mod:`decod_rs.parking` empties and
+        refills it in place while a rebuilt round runs)."""
+        return self._landmarks
+
+    @property
     def views(self) -> _core.PreparedViews:
         """Every landmark prepared for the matcher once (on first use): the comparisons
         here and the run's database and queries (:meth:`LandmarkDatabase.extend_prepared`)
@@ -121,8 +127,9 @@ class PairMemo:
         return self._views
 
     def release_views(self) -> None:
-        """Free the prepared views (about 125 KB a landmark); later comparisons prepare only the
-        landmarks they use."""
+        """Free the prepared views (about 50 KB a landmark on the matrix's logs, beside the
+        landmark's own 41 KB: ``docs/measurements.md``, "Long logs"); later comparisons
+        prepare only the landmarks they use."""
         self._views, self._released = None, True
 
     def compare(self, pairs: Sequence[tuple[int, int]]) -> list[PairResult]:

@@ -1,4 +1,5 @@
-//! Bindings for the survey file (`decod::survey`): write and read, header as JSON text.
+//! Bindings for the survey file (`decod::survey`): write and read, header as JSON text; and
+//! for landmarks a run sets aside while it rebuilds (`decod::park`).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -10,6 +11,7 @@ use super::errors::to_py_err;
 use super::landmark::PyLandmark;
 use crate::error::DecodError;
 use crate::landmark::Landmark;
+use crate::park;
 use crate::survey::{self, FORMAT_VERSION, Survey};
 
 /// Writes a survey: `header_json` (a JSON object with `joint_ids`, one per landmark) and the
@@ -41,9 +43,30 @@ fn read_survey(py: Python<'_>, path: PathBuf) -> PyResult<(String, Vec<PyLandmar
     ))
 }
 
+/// Sets `landmarks` aside in `path`, exactly (`decod::park`): a run's earlier round while it
+/// rebuilds its submaps.
+#[pyfunction]
+fn park_landmarks(
+    py: Python<'_>,
+    path: PathBuf,
+    landmarks: Vec<PyRef<'_, PyLandmark>>,
+) -> PyResult<()> {
+    let landmarks: Vec<Arc<Landmark>> = landmarks.iter().map(|l| l.inner.clone()).collect();
+    detached(py, move || park::write(&path, &landmarks))
+}
+
+/// The landmarks [`park_landmarks`] set aside in `path`, in their order.
+#[pyfunction]
+fn unpark_landmarks(py: Python<'_>, path: PathBuf) -> PyResult<Vec<PyLandmark>> {
+    let landmarks = detached(py, move || park::read(&path))?;
+    Ok(landmarks.into_iter().map(PyLandmark::new).collect())
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SURVEY_FORMAT_VERSION", FORMAT_VERSION)?;
     m.add_function(wrap_pyfunction!(write_survey, m)?)?;
     m.add_function(wrap_pyfunction!(read_survey, m)?)?;
+    m.add_function(wrap_pyfunction!(park_landmarks, m)?)?;
+    m.add_function(wrap_pyfunction!(unpark_landmarks, m)?)?;
     Ok(())
 }

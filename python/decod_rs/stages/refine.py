@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.config import Config
+from decod_rs.parking import set_aside
 from decod_rs.refinement import MAX_ROUNDS, RebuildDecision, rebuild_decision
 from decod_rs.stages.extract import Extracted, SubmapLandmarks, restitched
 from decod_rs.stages.match import Matched, match_and_select
@@ -51,13 +52,16 @@ def rebuilt(
         if not decision.needed:
             decisions.append(decision)
             break
-        ex2 = rebuild(extraction, cfg, solved.stitching, progress)
-        matched2 = match_and_select(
-            ex2, cfg, mode, *scans, link_frame=solved.stitching, progress=progress
-        )
-        matched2, solved2 = solve(
-            ex2, matched2, cfg, scans, True, extraction.gap_factors, progress=progress
-        )
+        # The earlier round's landmarks wait on disk while the rebuilt round runs.
+        earlier = [ex.landmarks] + ([] if matched.pairs is None else [matched.pairs.landmarks])
+        with set_aside(earlier):
+            ex2 = rebuild(extraction, cfg, solved.stitching, progress)
+            matched2 = match_and_select(
+                ex2, cfg, mode, *scans, link_frame=solved.stitching, progress=progress
+            )
+            matched2, solved2 = solve(
+                ex2, matched2, cfg, scans, True, extraction.gap_factors, progress=progress
+            )
         decision = replace(
             decision,
             loops=(sum(matched.keep), sum(matched2.keep)),
