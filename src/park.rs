@@ -42,7 +42,6 @@ pub fn write<L: Borrow<Landmark>>(path: &Path, landmarks: &[L]) -> Result<()> {
     let format = Records {
         offsets: Offsets::F64,
         framed: true,
-        durable: false,
     };
     write_records(path, &head, landmarks, format)
 }

@@ -151,7 +151,6 @@ pub fn write_survey<L: Borrow<Landmark>>(
     let format = Records {
         offsets: Offsets::F32,
         framed: false,
-        durable: true,
     };
     write_records(path, &head, landmarks, format)
 }
@@ -164,8 +163,6 @@ pub(crate) struct Records {
     /// Each record preceded by its length in bytes (u64), so that a reader can take them
     /// one at a time.
     pub framed: bool,
-    /// Synced to the disk before it is renamed (a file kept after the run).
-    pub durable: bool,
 }
 
 /// Writes `head`, then one record per landmark (validated first: one that fails is refused
@@ -198,10 +195,7 @@ pub(crate) fn write_records<L: Borrow<Landmark>>(
             }
             file.write_all(&out).map_err(io)?;
         }
-        let file = file.into_inner().map_err(|e| io(e.into_error()))?;
-        if format.durable {
-            file.sync_all().map_err(io)?;
-        }
+        file.into_inner().map_err(|e| io(e.into_error()))?;
         std::fs::rename(&partial, path).map_err(io)
     })();
     if written.is_err() {

@@ -39,8 +39,11 @@ def set_aside(holders: Sequence[list[Landmark]]) -> Iterator[None]:
         path = Path(tmp) / "landmarks.park"
         try:
             _core.park_landmarks(str(path), landmarks)
+            parked = True
         except OSError as exc:
             print(f"warning: {path}: {exc}; the earlier round stays in memory", file=sys.stderr)
+            parked = False
+        if not parked:
             yield
             return
         del landmarks
