@@ -21,7 +21,7 @@ use std::path::Path;
 
 use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
-use crate::survey::{Offsets, Reader, Records, err, write_records};
+use crate::survey::{MIN_RECORD_BYTES, Offsets, Reader, Records, err, write_records};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"DECODPRK";
@@ -30,8 +30,6 @@ pub const FORMAT_VERSION: u32 = 1;
 
 /// Bytes before the first record: magic, version, count.
 const HEAD_BYTES: u64 = 20;
-/// The smallest record: 17 f64 and 4 u32.
-const MIN_RECORD_BYTES: u64 = 17 * 8 + 16;
 
 /// Writes `landmarks` to `path`, exactly.
 pub fn write<L: Borrow<Landmark>>(path: &Path, landmarks: &[L]) -> Result<()> {

@@ -40,6 +40,8 @@ pub const MAX_CELLS: usize = 1 << 20;
 pub const MAX_SCANS: usize = 1 << 16;
 /// Largest header accepted, bytes.
 pub const MAX_HEADER_BYTES: u64 = 1 << 30;
+/// The smallest landmark record: 17 f64 and 4 u32 (bounds a file's claimed count).
+pub(crate) const MIN_RECORD_BYTES: u64 = 17 * 8 + 16;
 
 /// A survey in memory: the JSON header (see the module docs) and the landmarks.
 #[derive(Clone, Debug)]
@@ -250,8 +252,8 @@ impl Survey {
                 "header.joint_ids does not hold one id per landmark",
             ));
         }
-        // Each record holds at least 17 f64 and 4 u32: bound the count by the bytes left.
-        if count > (r.left() / (17 * 8 + 16)) as u64 {
+        // Bound the count by the bytes left before allocating for it.
+        if count > r.left() as u64 / MIN_RECORD_BYTES {
             return Err(err(
                 path,
                 format!("{count} landmarks cannot fit in the file"),
