@@ -97,7 +97,7 @@ pub fn build_descriptor(
         cols,
         cell_z_m: cell_z,
         perimeter_m: contour.perimeter_m,
-        offsets_m: sum,
+        offsets_m: sum.iter().map(|&v| v as f32).collect(),
         observed,
         normal_e1: columns.iter().map(|s| s.normal[0]).collect(),
         normal_e2: columns.iter().map(|s| s.normal[1]).collect(),

@@ -946,7 +946,8 @@ mod tests {
                 agree += usize::from(da.observed[i] == db.observed[j]);
                 if da.observed[i] && db.observed[j] {
                     both += 1;
-                    close += usize::from((da.offsets_m[i] - db.offsets_m[j]).abs() <= tol);
+                    close +=
+                        usize::from(f64::from((da.offsets_m[i] - db.offsets_m[j]).abs()) <= tol);
                 }
             }
         }
@@ -980,7 +981,7 @@ mod tests {
         let row_mean = |r: usize| {
             let cells: Vec<f64> = (0..d.cols)
                 .filter(|&c| d.observed[d.index(r, c)])
-                .map(|c| d.offsets_m[d.index(r, c)])
+                .map(|c| f64::from(d.offsets_m[d.index(r, c)]))
                 .collect();
             cells.iter().sum::<f64>() / cells.len().max(1) as f64
         };

@@ -20,8 +20,11 @@ pub struct Descriptor {
     /// Contour perimeter in metres: converts a `p` offset into an arclength.
     pub perimeter_m: f64,
     /// Mean signed normal offset per cell in metres, row-major `rows x cols`;
-    /// 0.0 where `observed` is false.
-    pub offsets_m: Vec<f64>,
+    /// 0.0 where `observed` is false. Single precision, as a survey file stores it: a cell's
+    /// mean is millimetres to decimetres of relief, so the f32's 1e-7 relative step is under
+    /// a nanometre, and a run's landmarks (the part of its memory that grows with the log)
+    /// take 16 KB less each (41 -> 25 KB; `docs/measurements.md`, "Long logs").
+    pub offsets_m: Vec<f32>,
     /// Per-cell observed mask, row-major `rows x cols` (bottom sector forced false).
     pub observed: Vec<bool>,
     /// `n1(p) = n(p)^T e1` at each column centre (length `cols`), for normalisation.
@@ -103,7 +106,7 @@ impl Landmark {
             ));
         }
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        if !finite(&d.offsets_m)
+        if !d.offsets_m.iter().all(|x| x.is_finite())
             || !finite(&d.normal_e1)
             || !finite(&d.normal_e2)
             || !finite(&self.origin_in_submap)

@@ -2,14 +2,16 @@
 //!
 //! A run whose first correction stitches the submaps differently enough extracts, matches and
 //! optimises again on submaps rebuilt on it (`decod_rs.stages.refine`), and keeps the earlier
-//! round in case the rebuilt one does not stand. The earlier round's landmarks (about 41 KB
-//! each: the offsets in f64, the mask, the contour) were held beside the rebuilt ones and
-//! their prepared views, the peak of a long log's run; set aside here, they come back exactly
-//! (offsets in f64, unlike a survey's f32) when the earlier round is needed again.
+//! round in case the rebuilt one does not stand. The earlier round's landmarks (about 25 KB
+//! each: the offsets, the mask, the contour) were held beside the rebuilt ones and their
+//! prepared views, the peak of a long log's run; set aside here, they come back exactly when
+//! the earlier round is needed again (a record holds what a landmark holds: the offsets in
+//! f32, as in a survey).
 //!
 //! **Format** (a temporary file the run writes and reads itself; little-endian, no code):
 //! magic `DECODPRK`, version u32 [`FORMAT_VERSION`], count u64, then `count` records, each
-//! its length in bytes (u64) and a survey record (`crate::survey`) with the offsets as f64.
+//! its length in bytes (u64) and a survey record (`crate::survey`). Version 1 stored the
+//! offsets in f64, when a landmark held them so.
 //! Read one record at a time into one buffer (the whole file at once was 0.4 GB on top of the
 //! rebuilt round for a 400 m pipe), every length checked against the bytes left in the file
 //! before anything is allocated.
@@ -21,12 +23,12 @@ use std::path::Path;
 
 use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
-use crate::survey::{MIN_RECORD_BYTES, Offsets, Reader, Records, err, write_records};
+use crate::survey::{MIN_RECORD_BYTES, Reader, Records, err, write_records};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"DECODPRK";
 /// Current format version; reading any other is an error.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 
 /// Bytes before the first record: magic, version, count.
 const HEAD_BYTES: u64 = 20;
@@ -37,11 +39,7 @@ pub fn write<L: Borrow<Landmark>>(path: &Path, landmarks: &[L]) -> Result<()> {
     head.extend_from_slice(MAGIC);
     head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     head.extend_from_slice(&(landmarks.len() as u64).to_le_bytes());
-    let format = Records {
-        offsets: Offsets::F64,
-        framed: true,
-    };
-    write_records(path, &head, landmarks, format)
+    write_records(path, &head, landmarks, Records { framed: true })
 }
 
 /// Reads the landmarks [`write`] wrote to `path`, in their order; a foreign, truncated or
@@ -104,7 +102,7 @@ pub fn read(path: &Path) -> Result<Vec<Landmark>> {
         left -= n;
         take(n as usize, &mut buf).map_err(at)?;
         let mut r = Reader::new(&buf, path);
-        let l = r.landmark(Offsets::F64).map_err(at)?;
+        let l = r.landmark().map_err(at)?;
         if r.left() != 0 {
             return Err(at(err(
                 path,
@@ -142,7 +140,7 @@ mod tests {
         let back = read(&path).unwrap_or_default();
         assert_eq!(back.len(), 3);
         for (a, b) in landmarks.iter().zip(&back) {
-            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&a.descriptor.offsets_m), bits(&b.descriptor.offsets_m));
             assert_eq!(a.descriptor.observed, b.descriptor.observed);
             assert_eq!(a.scan_stamps, b.scan_stamps);

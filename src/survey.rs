@@ -71,15 +71,7 @@ fn put_u32(out: &mut Vec<u8>, value: usize, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// How a record stores the descriptor's offsets: as the survey format says (f32), or exactly
-/// (f64: landmarks a run sets aside and takes back, `crate::park`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Offsets {
-    F32,
-    F64,
-}
-
-fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path, offsets: Offsets) -> Result<()> {
+fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path) -> Result<()> {
     let d = &l.descriptor;
     let mut fixed = vec![l.submap_stamp];
     for v in [
@@ -101,13 +93,8 @@ fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path, offsets: Offset
     }
     put_f64s(out, &d.normal_e1);
     put_f64s(out, &d.normal_e2);
-    match offsets {
-        Offsets::F32 => {
-            for v in &d.offsets_m {
-                out.extend_from_slice(&(*v as f32).to_le_bytes());
-            }
-        }
-        Offsets::F64 => put_f64s(out, &d.offsets_m),
+    for v in &d.offsets_m {
+        out.extend_from_slice(&v.to_le_bytes());
     }
     let mut bits = vec![0u8; d.observed.len().div_ceil(8)];
     for (i, _) in d.observed.iter().enumerate().filter(|(_, o)| **o) {
@@ -150,18 +137,12 @@ pub fn write_survey<L: Borrow<Landmark>>(
     head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     head.extend_from_slice(&(text.len() as u64).to_le_bytes());
     head.extend_from_slice(&text);
-    let format = Records {
-        offsets: Offsets::F32,
-        framed: false,
-    };
-    write_records(path, &head, landmarks, format)
+    write_records(path, &head, landmarks, Records { framed: false })
 }
 
 /// How [`write_records`] writes its records.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Records {
-    /// The offsets' precision.
-    pub offsets: Offsets,
     /// Each record preceded by its length in bytes (u64), so that a reader can take them
     /// one at a time.
     pub framed: bool,
@@ -190,7 +171,7 @@ pub(crate) fn write_records<L: Borrow<Landmark>>(
         let mut out = Vec::new();
         for l in landmarks {
             out.clear();
-            encode_landmark(&mut out, l.borrow(), path, format.offsets)?;
+            encode_landmark(&mut out, l.borrow(), path)?;
             if format.framed {
                 file.write_all(&(out.len() as u64).to_le_bytes())
                     .map_err(io)?;
@@ -262,7 +243,7 @@ impl Survey {
         let mut landmarks = Vec::with_capacity(count as usize);
         for k in 0..count as usize {
             let l = r
-                .landmark(Offsets::F32)
+                .landmark()
                 .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
             l.validate()
                 .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
@@ -334,7 +315,7 @@ impl<'a> Reader<'a> {
             .collect())
     }
 
-    pub(crate) fn landmark(&mut self, offsets: Offsets) -> Result<Landmark> {
+    pub(crate) fn landmark(&mut self) -> Result<Landmark> {
         let f = self.f64s(17)?;
         let v3 = |i: usize| [f[i], f[i + 1], f[i + 2]];
         let (rows, cols) = (self.u32()? as usize, self.u32()? as usize);
@@ -352,14 +333,11 @@ impl<'a> Reader<'a> {
         let points = self.f64s(2 * contour)?;
         let normal_e1 = self.f64s(cols)?;
         let normal_e2 = self.f64s(cols)?;
-        let offsets_m = match offsets {
-            Offsets::F32 => self
-                .take(4 * cells)?
-                .chunks_exact(4)
-                .map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
-                .collect(),
-            Offsets::F64 => self.f64s(cells)?,
-        };
+        let offsets_m = self
+            .take(4 * cells)?
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
         let bits = self.take(cells.div_ceil(8))?;
         let observed = (0..cells)
             .map(|i| bits[i / 8] & (1 << (i % 8)) != 0)
@@ -420,14 +398,8 @@ mod tests {
         assert!(s.write(&path).is_ok());
         let back = Survey::read(&path).expect("reads back");
         assert_eq!(back.landmarks.len(), 3);
-        for (a, b) in s.landmarks.iter().zip(&back.landmarks) {
-            assert_eq!(a.scan_stamps, b.scan_stamps);
-            assert_eq!(a.origin_in_submap, b.origin_in_submap);
-            assert_eq!(a.descriptor.observed, b.descriptor.observed);
-            for (x, y) in a.descriptor.offsets_m.iter().zip(&b.descriptor.offsets_m) {
-                assert!((x - y).abs() <= 1e-7 * x.abs().max(1e-3));
-            }
-        }
+        // Exact: a record holds what a landmark holds (the offsets in f32 in both).
+        assert_eq!(s.landmarks, back.landmarks);
         assert_eq!(back.header["landmarks"], 3);
         std::fs::remove_dir_all(&dir).ok();
     }

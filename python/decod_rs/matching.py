@@ -127,8 +127,8 @@ class PairMemo:
         return self._views
 
     def release_views(self) -> None:
-        """Free the prepared views (about 50 KB a landmark on the matrix's logs, beside the
-        landmark's own 41 KB: ``docs/measurements.md``, "Long logs"); later comparisons
+        """Free the prepared views (about 46 KB a landmark on the matrix's logs, beside the
+        landmark's own 29 KB: ``docs/measurements.md``, "Long logs"); later comparisons
         prepare only the landmarks they use."""
         self._views, self._released = None, True
 

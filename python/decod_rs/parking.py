@@ -3,9 +3,9 @@ the paper).
 
 A run whose correction stitches its submaps differently enough extracts, matches and
 optimises again on them (:mod:`decod_rs.stages.refine`) and keeps the earlier round in case
-the rebuilt one does not stand. Its landmarks (about 41 KB each) were held beside the rebuilt
+the rebuilt one does not stand. Its landmarks (about 29 KB each) were held beside the rebuilt
 ones and their prepared views: the peak of a long log's run. While the rebuilt round runs they
-wait in a temporary file (``decod_rs._core.park_landmarks``, exact: offsets in f64), and the
+wait in a temporary file (``decod_rs._core.park_landmarks``, an exact copy), and the
 lists that held them are emptied in place; afterwards they are read back into the same lists,
 bit for bit, so that the earlier round (and ``decod sweep``, which replays one extraction under
 several settings) finds them as they were. 400 m of pipe: ``docs/measurements.md``, "Long

@@ -51,7 +51,11 @@ fn field(l: &Landmark, cfg: &MatchingConfig) -> (Vec<f64>, Vec<bool>) {
     };
     let (f, mut observed) = normalise::smooth_along_p(&raw, &d.observed, d.rows, d.cols, sigma);
     let limit = WALL_FRACTION * l.radius_m;
-    let far: Vec<bool> = d.offsets_m.iter().map(|v| v.abs() > limit).collect();
+    let far: Vec<bool> = d
+        .offsets_m
+        .iter()
+        .map(|v| f64::from(v.abs()) > limit)
+        .collect();
     for r in 0..d.rows {
         for c in 0..d.cols {
             let near_far = (r.saturating_sub(1)..(r + 2).min(d.rows)).any(|rr| {

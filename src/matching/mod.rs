@@ -246,8 +246,9 @@ impl PreparedLandmark {
     pub fn heap_bytes(&self) -> usize {
         let l = &*self.landmark;
         let d = &l.descriptor;
-        let f64s = d.offsets_m.len() + d.normal_e1.len() + d.normal_e2.len();
+        let f64s = d.normal_e1.len() + d.normal_e2.len();
         let landmark = 8 * (f64s + l.scan_stamps.len() + 2 * l.contour_e1e2_m.len())
+            + 4 * d.offsets_m.len()
             + d.observed.len()
             + std::mem::size_of::<Landmark>();
         let m = &self.patches.values;

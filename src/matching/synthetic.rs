@@ -305,7 +305,7 @@ fn synthetic_landmark(
             cols,
             cell_z_m: g.cell_z_m,
             perimeter_m: TAU * g.radius_m,
-            offsets_m: offsets,
+            offsets_m: offsets.iter().map(|&v| v as f32).collect(),
             observed,
             normal_e1,
             normal_e2,

@@ -42,7 +42,8 @@ fn contour_points(contour: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f64; 2]>
 #[pymethods]
 impl PyLandmark {
     /// Builds a landmark from arrays (for descriptors computed elsewhere, and tests).
-    /// `descriptor` and `mask` are `(rows, cols)`; `e1` must be perpendicular to `axis`.
+    /// `descriptor` and `mask` are `(rows, cols)` (the offsets kept in single precision, as
+    /// `decod::landmark::Descriptor` holds them); `e1` must be perpendicular to `axis`.
     #[new]
     #[pyo3(signature = (
         submap_stamp, origin, axis, e1, descriptor, mask, *, cell_z_m, perimeter_m,
@@ -106,7 +107,7 @@ impl PyLandmark {
                 cols,
                 cell_z_m,
                 perimeter_m,
-                offsets_m: values.iter().copied().collect(),
+                offsets_m: values.iter().map(|&v| v as f32).collect(),
                 observed: mask.iter().copied().collect(),
                 normal_e1: normal_e1
                     .map(|n| vector(&n))
@@ -165,11 +166,13 @@ impl PyLandmark {
     fn strength(&self) -> f64 {
         self.inner.strength
     }
-    /// Mean signed normal offsets, `(rows, cols)` metres (0 where unobserved).
+    /// Mean signed normal offsets, `(rows, cols)` metres (0 where unobserved); held in single
+    /// precision (`decod::landmark::Descriptor::offsets_m`), given as float64.
     #[getter]
     fn descriptor<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let d = &self.inner.descriptor;
-        flat_to_numpy(py, d.offsets_m.clone(), d.rows, d.cols)
+        let values = d.offsets_m.iter().map(|&v| f64::from(v)).collect();
+        flat_to_numpy(py, values, d.rows, d.cols)
     }
     /// Observed-cell mask, `(rows, cols)` bool.
     #[getter]
