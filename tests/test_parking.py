@@ -8,6 +8,7 @@ import pytest
 
 from decod_rs import _core, synthetic_landmark
 from decod_rs.parking import set_aside
+from decod_rs.stages.extract import SubmapLandmarks
 
 
 def _landmarks() -> list[_core.Landmark]:
@@ -27,9 +28,34 @@ def test_landmarks_wait_on_disk_and_come_back_bit_for_bit() -> None:
 
 def test_they_come_back_when_the_rebuilt_round_fails() -> None:
     round_one = _landmarks()
-    with pytest.raises(RuntimeError, match="rebuild failed"), set_aside([round_one]):
+    with pytest.raises(RuntimeError, match="rebuild failed"), set_aside([round_one]) as parked:
+        parked.leave()  # even where the round had been kept
         raise RuntimeError("rebuild failed")
-    assert len(round_one) == 4
+    assert len(round_one) == 4 and not parked.on_disk
+
+
+def test_a_round_replaced_by_a_rebuilt_one_stays_on_disk_until_asked_for() -> None:
+    first = SubmapLandmarks(landmarks=_landmarks())
+    memo = list(first.landmarks)
+    before = [lm.to_json() for lm in first.landmarks]
+    with set_aside([first.landmarks, memo]) as parked:
+        parked.leave()  # the rebuilt round stood
+    assert parked.on_disk and first.landmarks == [] and memo == []
+    first.parked = parked
+    # A replay of the extraction (decod sweep) asks for them: back bit for bit, file gone.
+    assert first.restored() is first
+    assert [lm.to_json() for lm in first.landmarks] == before
+    assert first.parked is None and not parked.on_disk
+    assert len(first.restored().landmarks) == 4  # nothing more to read back, nothing doubled
+
+
+def test_a_round_not_needed_again_is_discarded_unread() -> None:
+    round_one = _landmarks()
+    with set_aside([round_one]) as parked:
+        parked.leave()
+    parked.discard()
+    parked.restore()  # nothing on disk any more: the list stays empty
+    assert round_one == [] and not parked.on_disk
 
 
 def test_a_full_disk_leaves_them_in_memory_with_a_warning(

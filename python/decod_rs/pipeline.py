@@ -157,7 +157,7 @@ def finish_run(
     """Stages 2-5 of Algorithm 1 on an extraction: match -> select -> optimise -> write
     (report.json last, with ``report_head`` merged in). ``decod run`` and ``decod sweep``
     (which replays one extraction under several matching/graph settings) share it."""
-    ex, scans, processor = extraction.extracted, extraction.scans, extraction.processor
+    ex, scans, processor = extraction.extracted.restored(), extraction.scans, extraction.processor
     t0 = time.perf_counter()
     matched = match_and_select(ex, cfg, mode, *scans, progress=progress)
     timings["match"] = time.perf_counter() - t0

@@ -20,6 +20,7 @@ from decod_rs.config import Config, load_config
 from decod_rs.end_faces import FaceView
 from decod_rs.ingest import StreamHealth, ingest_section, warn_once
 from decod_rs.jitter import smoothing
+from decod_rs.parking import Parked
 from decod_rs.progress import Progress
 from decod_rs.survey import Survey, survey_config
 from decod_rs.tum import interpolate_poses, write_tum
@@ -47,6 +48,17 @@ class SubmapLandmarks:
     travel_submaps: int = 0
     #: End faces in view of the anchors (:mod:`decod_rs.end_faces`).
     faces: list[FaceView] = field(default_factory=list)
+    #: Where ``landmarks`` wait on disk, the list empty, since a rebuilt round replaced this
+    #: one (:mod:`decod_rs.parking`); :meth:`restored` brings them back.
+    parked: Parked | None = None
+
+    def restored(self) -> SubmapLandmarks:
+        """This round with its landmarks in memory: read back if a rebuilt round that
+        replaced it left them on disk (``decod sweep`` replays one extraction)."""
+        if self.parked is not None:
+            self.parked.restore()
+            self.parked = None
+        return self
 
 
 @dataclass(frozen=True)

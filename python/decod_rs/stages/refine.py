@@ -52,9 +52,10 @@ def rebuilt(
         if not decision.needed:
             decisions.append(decision)
             break
-        # The earlier round's landmarks wait on disk while the rebuilt round runs.
+        # The earlier round's landmarks wait on disk while the rebuilt round runs, and after it
+        # if it stands (the extraction's own until a replay asks for them: `restored`).
         earlier = [ex.landmarks] + ([] if matched.pairs is None else [matched.pairs.landmarks])
-        with set_aside(earlier):
+        with set_aside(earlier) as parked:
             ex2 = rebuild(extraction, cfg, solved.stitching, progress)
             matched2 = match_and_select(
                 ex2, cfg, mode, *scans, link_frame=solved.stitching, progress=progress
@@ -62,14 +63,20 @@ def rebuilt(
             matched2, solved2 = solve(
                 ex2, matched2, cfg, scans, True, extraction.gap_factors, progress=progress
             )
-        decision = replace(
-            decision,
-            loops=(sum(matched.keep), sum(matched2.keep)),
-            rescaled=(rescaled_passes(solved), rescaled_passes(solved2)),
-        )
+            decision = replace(
+                decision,
+                loops=(sum(matched.keep), sum(matched2.keep)),
+                rescaled=(rescaled_passes(solved), rescaled_passes(solved2)),
+            )
+            if decision.kept:
+                parked.leave()
         decisions.append(decision)
         if not decision.kept:
             break
+        if ex is extraction.extracted:
+            ex.parked = parked
+        else:
+            parked.discard()  # a rebuilt round's, replaced by the next: not needed again
         stitched_on = solved.stitching
         ex, matched, solved = ex2, matched2, solved2
     return ex, matched, solved, decisions
