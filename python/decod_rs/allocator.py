@@ -81,7 +81,7 @@ def peak_memory_mb() -> float | None:
     say (Windows). For ``decod run`` the run's own; in a batch worker or a program that
     imports ``decod_rs``, the process's over everything it ran. ``report.json``
     ``peak_memory_mb``: what a log needs, which grows with it (``docs/measurements.md``,
-    "Long logs": 0.92-0.94 GB for 400 m of pipe, 33 minutes of log)."""
+    "Long logs": 0.68 GB for 400 m of pipe, 33 minutes of log)."""
     try:
         import resource
     except ImportError:
