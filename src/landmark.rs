@@ -23,7 +23,7 @@ pub struct Descriptor {
     /// 0.0 where `observed` is false. Single precision, as a survey file stores it: a cell's
     /// mean is millimetres to decimetres of relief, so the f32's 1e-7 relative step is under
     /// a nanometre, and a run's landmarks (the part of its memory that grows with the log)
-    /// take 16 KB less each (41 -> 25 KB; `docs/measurements.md`, "Long logs").
+    /// take 16 KB less each (45 -> 29 KB; `docs/measurements.md`, "Long logs").
     pub offsets_m: Vec<f32>,
     /// Per-cell observed mask, row-major `rows x cols` (bottom sector forced false).
     pub observed: Vec<bool>,

@@ -34,12 +34,12 @@ class Parked:
     def __init__(self, holders: Sequence[list[Landmark]]) -> None:
         self._holders = list(holders)
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
-        self.left = False
+        self._left = False
         if not self._holders or not self._holders[0]:
             return
         landmarks = list(self._holders[0])
         if any(list(h) != landmarks for h in self._holders[1:]):
-            raise ValueError("set_aside: the lists do not hold the same landmarks")
+            raise ValueError("parking: the lists do not hold the same landmarks")
         tmp = tempfile.TemporaryDirectory(prefix="decod-park-")
         path = Path(tmp.name) / "landmarks.park"
         try:
@@ -70,7 +70,12 @@ class Parked:
     def leave(self) -> None:
         """Keep the landmarks on disk past :func:`set_aside`'s block, for whoever holds this to
         :meth:`restore` or :meth:`discard` them."""
-        self.left = True
+        self._left = True
+
+    @property
+    def left(self) -> bool:
+        """Whether :meth:`leave` was called."""
+        return self._left
 
     def discard(self) -> None:
         """Remove the file without reading it back: the round is not needed again."""

@@ -85,10 +85,10 @@ fn scale_only(d: &Descriptor) -> Vec<f64> {
             .iter()
             .zip(&d.observed)
             .filter(|(_, o)| **o)
-            .map(|(&v, _)| (f64::from(v), ()))
+            .map(|(&v, _)| f64::from(v))
     };
-    let mean = obs().map(|(v, _)| v).sum::<f64>() / n;
-    let rms = (obs().map(|(v, _)| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let mean = obs().sum::<f64>() / n;
+    let rms = (obs().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
     let scale = if rms > 0.0 { 1.0 / rms } else { 1.0 };
     masked(d, |_, v| (v - mean) * scale)
 }
