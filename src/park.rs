@@ -2,7 +2,7 @@
 //!
 //! A run whose first correction stitches the submaps differently enough extracts, matches and
 //! optimises again on submaps rebuilt on it (`decod_rs.stages.refine`), and keeps the earlier
-//! round in case the rebuilt one does not stand. The earlier round's landmarks (about 25 KB
+//! round in case the rebuilt one does not stand. The earlier round's landmarks (about 29 KB
 //! each: the offsets, the mask, the contour) were held beside the rebuilt ones and their
 //! prepared views, the peak of a long log's run; set aside here, they come back exactly when
 //! the earlier round is needed again (a record holds what a landmark holds: the offsets in
@@ -23,7 +23,7 @@ use std::path::Path;
 
 use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
-use crate::survey::{MIN_RECORD_BYTES, Reader, Records, err, write_records};
+use crate::survey::{MIN_RECORD_BYTES, Reader, err, write_records};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"DECODPRK";
@@ -39,7 +39,7 @@ pub fn write<L: Borrow<Landmark>>(path: &Path, landmarks: &[L]) -> Result<()> {
     head.extend_from_slice(MAGIC);
     head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     head.extend_from_slice(&(landmarks.len() as u64).to_le_bytes());
-    write_records(path, &head, landmarks, Records { framed: true })
+    write_records(path, &head, landmarks, true)
 }
 
 /// Reads the landmarks [`write`] wrote to `path`, in their order; a foreign, truncated or

@@ -137,25 +137,19 @@ pub fn write_survey<L: Borrow<Landmark>>(
     head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     head.extend_from_slice(&(text.len() as u64).to_le_bytes());
     head.extend_from_slice(&text);
-    write_records(path, &head, landmarks, Records { framed: false })
-}
-
-/// How [`write_records`] writes its records.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Records {
-    /// Each record preceded by its length in bytes (u64), so that a reader can take them
-    /// one at a time.
-    pub framed: bool,
+    write_records(path, &head, landmarks, false)
 }
 
 /// Writes `head`, then one record per landmark (validated first: one that fails is refused
 /// before a byte is written), each encoded into one reused buffer and streamed to the file,
 /// which appears under `path` only once complete (written beside it, then renamed).
+/// `framed`: each record preceded by its length in bytes (u64), so that a reader can take
+/// them one at a time.
 pub(crate) fn write_records<L: Borrow<Landmark>>(
     path: &Path,
     head: &[u8],
     landmarks: &[L],
-    format: Records,
+    framed: bool,
 ) -> Result<()> {
     for l in landmarks {
         l.borrow().validate()?;
@@ -172,7 +166,7 @@ pub(crate) fn write_records<L: Borrow<Landmark>>(
         for l in landmarks {
             out.clear();
             encode_landmark(&mut out, l.borrow(), path)?;
-            if format.framed {
+            if framed {
                 file.write_all(&(out.len() as u64).to_le_bytes())
                     .map_err(io)?;
             }
