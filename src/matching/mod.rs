@@ -203,11 +203,8 @@ impl PreparedLandmark {
             let keypoints = keypoints::detect(&field, &observed, d.rows, d.cols, cfg, |r, c| {
                 shape.coverage(&observed, grid, r, c)
             });
-            let patches: Vec<_> = keypoints
-                .iter()
-                .map(|kp| shape.extract(&compared, &observed, grid, kp))
-                .collect();
-            (keypoints, CandidatePatches::new(shape, &patches))
+            let patches = CandidatePatches::new(shape, &compared, &observed, grid, &keypoints);
+            (keypoints, patches)
         };
         let ((keypoints, patches), coarse) = if query {
             rayon::join(keypoints_and_patches, signatures)
@@ -251,8 +248,7 @@ impl PreparedLandmark {
             + 4 * d.offsets_m.len()
             + d.observed.len()
             + std::mem::size_of::<Landmark>();
-        let m = &self.patches.values;
-        let patches = 4 * m.nrows() * m.ncols();
+        let patches = self.patches.heap_bytes();
         let bits = 8 * (self.observed_bits.len() + self.flipped_bits.len());
         let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
         let coarse = 4 * self.coarse.iter().map(Vec::len).sum::<usize>();

@@ -22,9 +22,10 @@
 //! not local amplitude (which varies with incidence angle and range); flat patches
 //! (std below 1e-9 of the field's scale) keep their raw, mean-removed values.
 //!
-//! The patches depend only on the landmark, so they are extracted once when a landmark is
-//! added to a database and kept compact (the values, `P x N`); the candidate matrix is built
-//! from them per comparison, the query factors once per query. Under `h = 180` the query
+//! The patches depend only on the landmark, so they are z-scored once when a landmark is
+//! added to a database and kept compact (the compared field and each keypoint's centre and
+//! z-score); the candidate matrix is built from them per comparison, the query factors once
+//! per query. Under `h = 180` the query
 //! patches are flipped (flat reversal, see `heading.rs`) instead of the candidate's, so the
 //! database stores one set of patches per landmark.
 
@@ -123,7 +124,48 @@ impl PatchShape {
         }
     }
 
-    /// The z-scored patch values and mask at one keypoint (flat, length `P`).
+    /// The z-score of the patch centred at `kp` over its observed cells: the
+    /// Gaussian-weighted mean and the inverse of the weighted standard deviation (1 for a flat
+    /// patch, whose values keep their amplitude; `(0, 1)` for a patch with no observed cell).
+    pub fn z_score(
+        &self,
+        field: &[f64],
+        observed: &[bool],
+        grid: (usize, usize),
+        kp: &Keypoint,
+    ) -> (f64, f64) {
+        let (mut sw, mut swa) = (0.0, 0.0);
+        let mut cells = Vec::with_capacity(self.len());
+        self.visit(grid, kp.row, kp.col, |k, cell| {
+            if let Some(i) = cell
+                && observed[i]
+            {
+                let w = f64::from(self.weights[k]);
+                sw += w;
+                swa += w * field[i];
+                cells.push((w, field[i]));
+            }
+        });
+        if sw <= 0.0 {
+            return (0.0, 1.0);
+        }
+        let mean = swa / sw;
+        let var = cells
+            .iter()
+            .map(|&(w, v)| w * (v - mean).powi(2))
+            .sum::<f64>()
+            / sw;
+        let scale = if var.sqrt() > 1e-9 {
+            1.0 / var.sqrt()
+        } else {
+            1.0
+        };
+        (mean, scale)
+    }
+
+    /// The z-scored patch values and mask at one keypoint (flat, length `P`), in f64: the
+    /// reference that [`CandidatePatches::patch_into`] reproduces in f32 (tests).
+    #[cfg(test)]
     pub fn extract(
         &self,
         field: &[f64],
@@ -132,81 +174,105 @@ impl PatchShape {
         kp: &Keypoint,
     ) -> (Vec<f64>, Vec<bool>) {
         let p = self.len();
+        let (mean, scale) = self.z_score(field, observed, grid, kp);
         let (mut values, mut mask) = (vec![0.0; p], vec![false; p]);
         self.visit(grid, kp.row, kp.col, |k, cell| {
             if let Some(i) = cell
                 && observed[i]
             {
-                values[k] = field[i];
+                values[k] = (field[i] - mean) * scale;
                 mask[k] = true;
             }
         });
-        let (mut sw, mut swa) = (0.0, 0.0);
-        for k in 0..p {
-            if mask[k] {
-                let w = f64::from(self.weights[k]);
-                sw += w;
-                swa += w * values[k];
-            }
-        }
-        if sw > 0.0 {
-            let mean = swa / sw;
-            let var = (0..p)
-                .filter(|&k| mask[k])
-                .map(|k| f64::from(self.weights[k]) * (values[k] - mean).powi(2))
-                .sum::<f64>()
-                / sw;
-            let scale = if var.sqrt() > 1e-9 {
-                1.0 / var.sqrt()
-            } else {
-                1.0
-            };
-            for k in 0..p {
-                values[k] = if mask[k] {
-                    (values[k] - mean) * scale
-                } else {
-                    0.0
-                };
-            }
-        }
         (values, mask)
     }
 }
 
-/// The candidate side of one landmark's keypoint patches, kept compact: the z-scored values
-/// `b` (`P x N` f32, column `j` = keypoint `j`, NaN where the cell is unobserved). The GEMM's
-/// factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) is built from it by
-/// [`Self::factor_into`] for the comparison that needs it, to the same bits as if it had been
-/// kept: a database holds a third of the floats it did (the factor was 96 % of a prepared
-/// landmark, 183 KB of 190 with a 64-beam tunnel's 51 keypoints; 277 -> 125 KB a landmark
-/// with the landmark itself), for about 10 us a pair: `cargo bench --bench matcher`
-/// `pair_prepared` 149 -> 159 us (both headings, best of four interleaved runs),
-/// `query_20_candidates` 3.12 -> 3.20 ms (`docs/decisions.md`, "Coarse retrieval for large
-/// databases").
+/// Where one keypoint's patch lies on the compared field and how it is z-scored
+/// ([`PatchShape::z_score`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PatchCentre {
+    row: u32,
+    col: u32,
+    mean: f64,
+    scale: f64,
+}
+
+/// The candidate side of one landmark's keypoint patches, kept compact: the compared field
+/// once (`rows x cols` f32, NaN where unobserved) and each keypoint's centre and z-score. A
+/// keypoint's patch `b` ([`Self::patch_into`], `P` values) and the GEMM's factor
+/// `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`, [`Self::factor_into`]) are built from them for
+/// the comparison that needs them. The patches overlap: 64 keypoints' 9 x 33 cells are 4.6
+/// times the 16 x 256 field, so the field's 16 KB replace about 43 KB of patch values on
+/// the full tier's landmarks (a landmark with its prepared view 76 -> 50 KB, the same 49-50
+/// KB in every corridor and sensor; `docs/measurements.md`, "Long logs"), for about 2 % of a
+/// pair (`cargo bench --bench matcher`). The values are the f64 reference's
+/// (`PatchShape::extract`, in tests) from the field rounded to f32, within about 1e-6 of
+/// them; before that, the values themselves were kept instead of the factor, a third of its
+/// floats (`docs/decisions.md`, "Coarse retrieval for large databases").
 #[derive(Clone, Debug)]
 pub struct CandidatePatches {
-    /// `P x N`, NaN where unobserved.
-    pub values: Mat<f32>,
+    /// The compared field, row-major, NaN where unobserved.
+    field: Vec<f32>,
+    /// `(rows, cols)` of the field.
+    grid: (usize, usize),
+    /// One per keypoint, in the keypoints' order.
+    centres: Vec<PatchCentre>,
 }
 
 impl CandidatePatches {
-    /// Packs per-keypoint `(values, mask)` patches.
-    pub fn new(shape: &PatchShape, patches: &[(Vec<f64>, Vec<bool>)]) -> Self {
-        let p = shape.len();
-        let mut values = Mat::<f32>::from_fn(p, patches.len(), |_, _| f32::NAN);
-        for (j, (v, mask)) in patches.iter().enumerate() {
-            for (k, out) in values.col_as_slice_mut(j).iter_mut().enumerate() {
-                if mask[k] {
-                    *out = v[k] as f32;
+    /// The patches of `keypoints` on `field` (the compared field, `grid`, with its
+    /// `observed` mask).
+    pub fn new(
+        shape: &PatchShape,
+        field: &[f64],
+        observed: &[bool],
+        grid: (usize, usize),
+        keypoints: &[Keypoint],
+    ) -> Self {
+        let centres = keypoints
+            .iter()
+            .map(|kp| {
+                let (mean, scale) = shape.z_score(field, observed, grid, kp);
+                PatchCentre {
+                    row: kp.row as u32,
+                    col: kp.col as u32,
+                    mean,
+                    scale,
                 }
-            }
+            })
+            .collect();
+        let field = field
+            .iter()
+            .zip(observed)
+            .map(|(&v, &o)| if o { v as f32 } else { f32::NAN })
+            .collect();
+        Self {
+            field,
+            grid,
+            centres,
         }
-        Self { values }
     }
 
     /// Number of keypoints `N`.
     pub fn count(&self) -> usize {
-        self.values.ncols()
+        self.centres.len()
+    }
+
+    /// Heap bytes held (the field and the centres).
+    pub fn heap_bytes(&self) -> usize {
+        4 * self.field.len() + self.centres.len() * std::mem::size_of::<PatchCentre>()
+    }
+
+    /// Keypoint `j`'s z-scored patch in `out` (`P` values, flat row-major; NaN where the cell
+    /// is unobserved or beyond the field's axial ends; columns wrap around the circumference).
+    pub fn patch_into(&self, shape: &PatchShape, j: usize, out: &mut [f32]) {
+        pulp::Arch::new().dispatch(FillPatch {
+            patches: self,
+            shape,
+            j,
+            out,
+        });
     }
 
     /// Builds the candidate factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) of
@@ -215,11 +281,15 @@ impl CandidatePatches {
     /// Every entry is written.
     pub fn factor_into(&self, shape: &PatchShape, buf: &mut Mat<f32>) {
         buf.resize_with(3 * shape.len(), self.count(), |_, _| 0.0);
-        pulp::Arch::new().dispatch(FillFactor {
-            values: &self.values,
-            weights: &shape.weights,
-            buf,
-        });
+        let mut patch = vec![0.0f32; shape.len()];
+        for j in 0..self.count() {
+            self.patch_into(shape, j, &mut patch);
+            pulp::Arch::new().dispatch(FillFactor {
+                values: &patch,
+                weights: &shape.weights,
+                column: buf.col_as_slice_mut(j),
+            });
+        }
     }
 
     /// The factor as an owned matrix (tests, one-off comparisons).
@@ -230,13 +300,73 @@ impl CandidatePatches {
     }
 }
 
-/// The body of [`CandidatePatches::factor_into`]: branch-free (an unobserved cell's NaN
-/// masked to +0 bit by bit, as the zeros the factor was once initialised with), so that the
-/// compiler vectorises it at the CPU's width under [`pulp`] dispatch, as [`Ratio`].
+/// The body of [`CandidatePatches::patch_into`]: a patch row is one or two runs of the
+/// field's row (two where it wraps around the circumference), each a branch-free map that the
+/// compiler vectorises under [`pulp`] dispatch (a NaN stays NaN).
+struct FillPatch<'a> {
+    patches: &'a CandidatePatches,
+    shape: &'a PatchShape,
+    j: usize,
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for FillPatch<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let CandidatePatches {
+            field,
+            grid: (rows, cols),
+            centres,
+        } = self.patches;
+        let c = centres[self.j];
+        let (prows, pcols) = (self.shape.rows, self.shape.cols);
+        let z = |src: &[f32], dst: &mut [f32]| {
+            for (o, &v) in dst.iter_mut().zip(src) {
+                *o = ((f64::from(v) - c.mean) * c.scale) as f32;
+            }
+        };
+        if *cols == 0 {
+            self.out.fill(f32::NAN);
+            return;
+        }
+        let first_col = (c.col as usize % cols + cols - (pcols / 2) % cols) % cols;
+        for (dr, out_row) in self.out.chunks_exact_mut(pcols).take(prows).enumerate() {
+            let r = (c.row as usize + dr).checked_sub(prows / 2);
+            let Some(row) = r
+                .filter(|&r| r < *rows)
+                .map(|r| &field[r * cols..(r + 1) * cols])
+            else {
+                out_row.fill(f32::NAN);
+                continue;
+            };
+            if pcols > *cols {
+                // A patch wider than the field (a grid no config of ours makes): cell by cell.
+                for (dc, o) in out_row.iter_mut().enumerate() {
+                    z(
+                        &row[(first_col + dc) % cols..][..1],
+                        std::slice::from_mut(o),
+                    );
+                }
+                continue;
+            }
+            let head = (cols - first_col).min(pcols);
+            let (near, far) = out_row.split_at_mut(head);
+            z(&row[first_col..first_col + head], near);
+            z(&row[..pcols - head], far);
+        }
+    }
+}
+
+/// The body of [`CandidatePatches::factor_into`] for one keypoint: branch-free (an
+/// unobserved cell's NaN masked to +0 bit by bit, as the zeros the factor was once initialised
+/// with), so that the compiler vectorises it at the CPU's width under [`pulp`] dispatch, as
+/// [`Ratio`].
 struct FillFactor<'a> {
-    values: &'a Mat<f32>,
+    values: &'a [f32],
     weights: &'a [f32],
-    buf: &'a mut Mat<f32>,
+    column: &'a mut [f32],
 }
 
 impl pulp::WithSimd for FillFactor<'_> {
@@ -245,17 +375,15 @@ impl pulp::WithSimd for FillFactor<'_> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
         let p = self.weights.len();
-        for j in 0..self.buf.ncols() {
-            let (mask, rest) = self.buf.col_as_slice_mut(j).split_at_mut(p);
-            let (square, rest) = rest.split_at_mut(p);
-            let cells = self.values.col_as_slice(j).iter().zip(self.weights);
-            let out = mask.iter_mut().zip(square.iter_mut()).zip(rest.iter_mut());
-            for ((&b, &w), ((m, sq), lin)) in cells.zip(out) {
-                let keep = 0u32.wrapping_sub(u32::from(!b.is_nan()));
-                *m = f32::from_bits(1.0f32.to_bits() & keep);
-                *sq = f32::from_bits((w * b * b).to_bits() & keep);
-                *lin = f32::from_bits((-2.0 * b).to_bits() & keep);
-            }
+        let (mask, rest) = self.column.split_at_mut(p);
+        let (square, rest) = rest.split_at_mut(p);
+        let cells = self.values.iter().zip(self.weights);
+        let out = mask.iter_mut().zip(square.iter_mut()).zip(rest.iter_mut());
+        for ((&b, &w), ((m, sq), lin)) in cells.zip(out) {
+            let keep = 0u32.wrapping_sub(u32::from(!b.is_nan()));
+            *m = f32::from_bits(1.0f32.to_bits() & keep);
+            *sq = f32::from_bits((w * b * b).to_bits() & keep);
+            *lin = f32::from_bits((-2.0 * b).to_bits() & keep);
         }
     }
 }
@@ -278,8 +406,9 @@ impl QueryPatches {
         let n = cand.count();
         let mut numerator = Mat::<f32>::zeros(n, 3 * p);
         let mut denominator = Mat::<f32>::zeros(n, p);
+        let mut values = vec![0.0f32; p];
         for i in 0..n {
-            let values = cand.values.col_as_slice(i);
+            cand.patch_into(shape, i, &mut values);
             for k in 0..p {
                 // Source position: reversed patch under the flip; weights are symmetric.
                 let src = if flipped { p - 1 - k } else { k };

@@ -266,20 +266,35 @@ fn gemm_patch_distances_agree_with_brute_force() {
         2,
     );
     let mode = normalise::Normalisation::from_config(&c);
+    // Each side's field, keypoints and their f64 reference patches.
     let patches_of = |l: &Landmark| {
         let d = &l.descriptor;
         let field = normalise::normalised_field(d, mode, false);
         let kps = keypoints::detect(&field, &d.observed, d.rows, d.cols, &c, |r, col| {
             shape.coverage(&d.observed, (d.rows, d.cols), r, col)
         });
-        kps.iter()
+        let compact =
+            patches::CandidatePatches::new(&shape, &field, &d.observed, (d.rows, d.cols), &kps);
+        let reference = kps
+            .iter()
             .map(|k| shape.extract(&field, &d.observed, (d.rows, d.cols), k))
-            .collect::<Vec<_>>()
+            .collect::<Vec<_>>();
+        (compact, reference)
     };
-    let (pa, pb) = (patches_of(&a), patches_of(&b));
-    let cand = patches::CandidatePatches::new(&shape, &pb);
+    let ((own, pa), (cand, pb)) = (patches_of(&a), patches_of(&b));
+    // The compact patches are the f64 reference's from a field rounded to f32.
+    let mut patch = vec![0.0f32; shape.len()];
+    for (j, (values, mask)) in pb.iter().enumerate() {
+        cand.patch_into(&shape, j, &mut patch);
+        for k in 0..shape.len() {
+            if mask[k] {
+                assert!((f64::from(patch[k]) - values[k]).abs() < 1e-4, "{k}");
+            } else {
+                assert!(patch[k].is_nan(), "{k}");
+            }
+        }
+    }
     for flipped in [false, true] {
-        let own = patches::CandidatePatches::new(&shape, &pa);
         let query = patches::QueryPatches::from_candidate(&shape, &own, flipped);
         let dist = patches::distances(
             &shape,
@@ -320,18 +335,30 @@ fn candidate_factor_is_the_same_from_a_reused_buffer() {
     // last pair: what that pair wrote (here NaN, more keypoints) must not reach this one.
     let shape = patches::PatchShape::new(&cfg());
     let p = shape.len();
-    let patch = |seed: usize| {
-        let values: Vec<f64> = (0..p).map(|k| ((k * 7 + seed) % 13) as f64 - 6.0).collect();
-        let mask: Vec<bool> = (0..p).map(|k| (k + seed) % 5 != 0).collect();
-        (values, mask)
-    };
-    let cand = patches::CandidatePatches::new(&shape, &[patch(1), patch(2), patch(3)]);
+    // A 12 x 40 field of small integers with holes, three keypoints (one near the axial
+    // end, one whose patch wraps around the circumference).
+    let grid = (12, 40);
+    let field: Vec<f64> = (0..grid.0 * grid.1)
+        .map(|i| ((i * 7) % 13) as f64 - 6.0)
+        .collect();
+    let observed: Vec<bool> = (0..field.len()).map(|i| i % 5 != 0).collect();
+    let kps: Vec<keypoints::Keypoint> = [(6, 20), (2, 3), (8, 38)]
+        .iter()
+        .map(|&(row, col)| keypoints::Keypoint {
+            row,
+            col,
+            response: 1.0,
+        })
+        .collect();
+    let cand = patches::CandidatePatches::new(&shape, &field, &observed, grid, &kps);
     let fresh = cand.factor(&shape);
     let mut reused = Mat::<f32>::from_fn(3 * p, 10, |_, _| f32::NAN);
     cand.factor_into(&shape, &mut reused);
     assert_eq!((reused.nrows(), reused.ncols()), (3 * p, 3));
-    for j in 0..3 {
-        let (values, mask) = patch(j + 1);
+    for (j, kp) in kps.iter().enumerate() {
+        // Small integers and their z-score: the f32 field is exact, so are the values.
+        let (values, mask) = shape.extract(&field, &observed, grid, kp);
+        assert!(mask.iter().any(|&m| !m) && mask.iter().filter(|&&m| m).count() > p / 2);
         for k in 0..p {
             let b = values[k] as f32;
             let want = if mask[k] {
