@@ -25,9 +25,8 @@
 //! The patches depend only on the landmark, so they are z-scored once when a landmark is
 //! added to a database and kept compact (the compared field and each keypoint's centre and
 //! z-score); the candidate matrix is built from them per comparison, the query factors once
-//! per query. Under `h = 180` the query
-//! patches are flipped (flat reversal, see `heading.rs`) instead of the candidate's, so the
-//! database stores one set of patches per landmark.
+//! per query. Under `h = 180` the query patches are flipped (flat reversal, see `heading.rs`)
+//! instead of the candidate's, so the database stores one set of patches per landmark.
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatRef, Par};
@@ -322,9 +321,10 @@ impl pulp::WithSimd for FillPatch<'_> {
         } = self.patches;
         let c = centres[self.j];
         let (prows, pcols) = (self.shape.rows, self.shape.cols);
-        let z = |src: &[f32], dst: &mut [f32]| {
+        let z = |v: f32| ((f64::from(v) - c.mean) * c.scale) as f32;
+        let run = |src: &[f32], dst: &mut [f32]| {
             for (o, &v) in dst.iter_mut().zip(src) {
-                *o = ((f64::from(v) - c.mean) * c.scale) as f32;
+                *o = z(v);
             }
         };
         if *cols == 0 {
@@ -344,17 +344,14 @@ impl pulp::WithSimd for FillPatch<'_> {
             if pcols > *cols {
                 // A patch wider than the field (a grid no config of ours makes): cell by cell.
                 for (dc, o) in out_row.iter_mut().enumerate() {
-                    z(
-                        &row[(first_col + dc) % cols..][..1],
-                        std::slice::from_mut(o),
-                    );
+                    *o = z(row[(first_col + dc) % cols]);
                 }
                 continue;
             }
             let head = (cols - first_col).min(pcols);
             let (near, far) = out_row.split_at_mut(head);
-            z(&row[first_col..first_col + head], near);
-            z(&row[..pcols - head], far);
+            run(&row[first_col..first_col + head], near);
+            run(&row[..pcols - head], far);
         }
     }
 }

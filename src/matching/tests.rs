@@ -380,6 +380,39 @@ fn candidate_factor_is_the_same_from_a_reused_buffer() {
 }
 
 #[test]
+fn patches_read_out_of_a_field_narrower_than_a_patch_wrap_cell_by_cell() {
+    // 33-column patches on a 20-column field: every patch row wraps around more than once
+    // at its ends; the values must still be the f64 reference's (exact on small integers).
+    let shape = patches::PatchShape::new(&cfg());
+    let grid = (10, 20);
+    let field: Vec<f64> = (0..grid.0 * grid.1)
+        .map(|i| (i % 11) as f64 - 5.0)
+        .collect();
+    let observed: Vec<bool> = (0..field.len()).map(|i| i % 7 != 3).collect();
+    let kps: Vec<keypoints::Keypoint> = [(0, 0), (5, 19), (9, 7)]
+        .iter()
+        .map(|&(row, col)| keypoints::Keypoint {
+            row,
+            col,
+            response: 1.0,
+        })
+        .collect();
+    let cand = patches::CandidatePatches::new(&shape, &field, &observed, grid, &kps);
+    let mut patch = vec![0.0f32; shape.len()];
+    for (j, kp) in kps.iter().enumerate() {
+        cand.patch_into(&shape, j, &mut patch);
+        let (values, mask) = shape.extract(&field, &observed, grid, kp);
+        for k in 0..shape.len() {
+            if mask[k] {
+                assert_eq!(patch[k].to_bits(), (values[k] as f32).to_bits(), "{j}: {k}");
+            } else {
+                assert!(patch[k].is_nan(), "{j}: {k}");
+            }
+        }
+    }
+}
+
+#[test]
 fn database_round_trips_and_rejects_other_versions() {
     let mut rng = Rng::new(14);
     let mut db = corridor(&[50, 51, 52], &mut rng);
