@@ -127,9 +127,10 @@ class PairMemo:
         return self._views
 
     def release_views(self) -> None:
-        """Free the prepared views (about 46 KB a landmark on the matrix's logs, beside the
-        landmark's own 29 KB: ``docs/measurements.md``, "Long logs"); later comparisons
-        prepare only the landmarks they use."""
+        """Free the prepared views (about 25 KB a landmark on the matrix's logs, a query's
+        six coarse signatures included, beside the landmark's own 29 KB:
+        ``docs/measurements.md``, "Long logs"); later comparisons prepare only the
+        landmarks they use."""
         self._views, self._released = None, True
 
     def compare(self, pairs: Sequence[tuple[int, int]]) -> list[PairResult]:
