@@ -329,6 +329,18 @@ fn gemm_patch_distances_agree_with_brute_force() {
     }
 }
 
+/// Keypoints at `(row, col)` centres (the patch tests place them by hand).
+fn keypoints_at(centres: &[(usize, usize)]) -> Vec<keypoints::Keypoint> {
+    centres
+        .iter()
+        .map(|&(row, col)| keypoints::Keypoint {
+            row,
+            col,
+            response: 1.0,
+        })
+        .collect()
+}
+
 #[test]
 fn candidate_factor_is_the_same_from_a_reused_buffer() {
     // A comparison builds the candidate's factor in its thread's buffer, left over from the
@@ -342,14 +354,7 @@ fn candidate_factor_is_the_same_from_a_reused_buffer() {
         .map(|i| ((i * 7) % 13) as f64 - 6.0)
         .collect();
     let observed: Vec<bool> = (0..field.len()).map(|i| i % 5 != 0).collect();
-    let kps: Vec<keypoints::Keypoint> = [(6, 20), (2, 3), (8, 38)]
-        .iter()
-        .map(|&(row, col)| keypoints::Keypoint {
-            row,
-            col,
-            response: 1.0,
-        })
-        .collect();
+    let kps = keypoints_at(&[(6, 20), (2, 3), (8, 38)]);
     let cand = patches::CandidatePatches::new(&shape, &field, &observed, grid, &kps);
     let fresh = cand.factor(&shape);
     let mut reused = Mat::<f32>::from_fn(3 * p, 10, |_, _| f32::NAN);
@@ -389,14 +394,7 @@ fn patches_read_out_of_a_field_narrower_than_a_patch_wrap_cell_by_cell() {
         .map(|i| (i % 11) as f64 - 5.0)
         .collect();
     let observed: Vec<bool> = (0..field.len()).map(|i| i % 7 != 3).collect();
-    let kps: Vec<keypoints::Keypoint> = [(0, 0), (5, 19), (9, 7)]
-        .iter()
-        .map(|&(row, col)| keypoints::Keypoint {
-            row,
-            col,
-            response: 1.0,
-        })
-        .collect();
+    let kps = keypoints_at(&[(0, 0), (5, 19), (9, 7)]);
     let cand = patches::CandidatePatches::new(&shape, &field, &observed, grid, &kps);
     let mut patch = vec![0.0f32; shape.len()];
     for (j, kp) in kps.iter().enumerate() {
