@@ -20,6 +20,7 @@ pub mod heading;
 pub mod keypoints;
 pub mod normalise;
 pub mod null_model;
+pub mod patch_distances;
 pub mod patches;
 pub mod retrieval;
 pub mod synthetic;
@@ -35,11 +36,11 @@ use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
 
 pub use database::{LandmarkDatabase, QueryResult};
-use faer::{Mat, MatRef};
 pub use heading::Heading;
 use keypoints::Keypoint;
 use normalise::Normalisation;
-use patches::{CandidatePatches, PatchShape, QueryPatches};
+use patch_distances::{Distances, PatchFactor, QueryPatches};
+use patches::{CandidatePatches, PatchShape};
 use verify::Correspondence;
 
 /// Why a pair or a query was not accepted (reported, never silent).
@@ -570,7 +571,7 @@ fn compare_heading(
         return result;
     }
     let qp = side.patches(q, shape, heading);
-    let dist = patches::distances(shape, qp, factor.get(), cfg.min_patch_overlap_fraction);
+    let dist = patch_distances::distances(shape, qp, factor.get(), cfg.min_patch_overlap_fraction);
     let matches = keypoint_correspondences(q, c, &dist, heading);
     let consensus = if cfg.verification {
         verify::consensus(&matches, cols, cfg)
@@ -602,16 +603,16 @@ fn compare_heading(
 thread_local! {
     /// The buffer [`CandidateFactor`]s build their factor in, one per thread (a rayon worker
     /// compares one pair at a time): reused, so a comparison allocates nothing for it.
-    static FACTOR_BUFFER: Cell<Option<Mat<f32>>> = const { Cell::new(None) };
+    static FACTOR_BUFFER: Cell<Option<PatchFactor>> = const { Cell::new(None) };
 }
 
-/// A candidate's GEMM factor ([`CandidatePatches::factor_into`]), built by the first
+/// A candidate's GEMM factor ([`PatchFactor::fill`]), built by the first
 /// heading whose comparison gets past the overlap test and shared by the other, in the
 /// thread's [`FACTOR_BUFFER`] (given back on drop).
 struct CandidateFactor<'a> {
     landmark: &'a PreparedLandmark,
     shape: &'a PatchShape,
-    buffer: OnceCell<Mat<f32>>,
+    buffer: OnceCell<PatchFactor>,
 }
 
 impl<'a> CandidateFactor<'a> {
@@ -623,14 +624,12 @@ impl<'a> CandidateFactor<'a> {
         }
     }
 
-    fn get(&self) -> MatRef<'_, f32> {
-        self.buffer
-            .get_or_init(|| {
-                let mut buf = FACTOR_BUFFER.take().unwrap_or_else(Mat::new);
-                self.landmark.patches.factor_into(self.shape, &mut buf);
-                buf
-            })
-            .as_ref()
+    fn get(&self) -> &PatchFactor {
+        self.buffer.get_or_init(|| {
+            let mut buf = FACTOR_BUFFER.take().unwrap_or_default();
+            buf.fill(self.shape, &self.landmark.patches);
+            buf
+        })
     }
 }
 
@@ -647,11 +646,11 @@ impl Drop for CandidateFactor<'_> {
 fn keypoint_correspondences(
     q: &PreparedLandmark,
     c: &PreparedLandmark,
-    dist: &Mat<f32>,
+    dist: &Distances<'_>,
     heading: Heading,
 ) -> Vec<Correspondence> {
     let (rows, cols) = q.grid();
-    correspondences::mutual_nearest(dist)
+    dist.mutual_nearest()
         .iter()
         .map(|&(i, j)| {
             let kq = &q.keypoints[i];

@@ -1,21 +1,7 @@
-//! Gaussian-weighted local patches and their masked distances as matrix products
-//! (paper §III-B: 9 x 33 patches, Gaussian weights sigma_z, sigma_p, distance over mutually
-//! observed cells).
-//!
-//! For a query patch `a` with mask `m_a` and a candidate patch `b` with mask `m_b` (flat
-//! vectors of `P = patch_rows * patch_cols` cells, weights `w`), the distance is the weighted
-//! mean squared difference over mutually observed cells:
-//!
-//! `d(a, b) = sum w m_a m_b (a - b)^2 / sum w m_a m_b`, and `+inf` when the mutual weight
-//! `sum w m_a m_b` is below `min_patch_overlap_fraction * sum w`.
-//!
-//! The numerator expands into `(w m_a a^2) . m_b + m_a . (w m_b b^2) - 2 (w m_a a) . (m_b b)`,
-//! so for all keypoint pairs at once it is ONE matrix product with inner size `3P`:
-//! `[w m_a a^2 | m_a | w m_a a] (N_i x 3P)  x  [m_b ; w m_b b^2 ; -2 m_b b] (3P x N_j)`,
-//! and the denominator is a second one, `[w m_a] (N_i x P) x [m_b] (P x N_j)`, whose right
-//! factor is the first block of the candidate matrix. Both go to faer's GEMM in f32 (offsets
-//! are z-scored per patch, so f32 keeps ~1e-6 relative precision; checked against a
-//! brute-force f64 reference in the tests).
+//! Gaussian-weighted local patches of the compared field (paper §III-B: 9 x 33 patches,
+//! Gaussian weights sigma_z, sigma_p, distance over mutually observed cells): their shape,
+//! z-score and compact storage. Their distances, as matrix products, are in
+//! [`super::patch_distances`].
 //!
 //! Patch normalisation (the paper is silent): each patch is z-scored (Gaussian-weighted mean
 //! and standard deviation over its own observed cells), so a distance compares texture shape,
@@ -24,12 +10,10 @@
 //!
 //! The patches depend only on the landmark, so they are z-scored once when a landmark is
 //! added to a database and kept compact (the compared field and each keypoint's centre and
-//! z-score); the candidate matrix is built from them per comparison, the query factors once
-//! per query. Under `h = 180` the query patches are flipped (flat reversal, see `heading.rs`)
-//! instead of the candidate's, so the database stores one set of patches per landmark.
-
-use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, MatRef, Par};
+//! z-score); the factors of the distances' matrix products are built from them per
+//! comparison (the candidate's) or once per query. Under `h = 180` the query patches are
+//! flipped (flat reversal, see `heading.rs`) instead of the candidate's, so the database
+//! stores one set of patches per landmark.
 
 use super::keypoints::Keypoint;
 use crate::config::MatchingConfig;
@@ -94,6 +78,34 @@ impl PatchShape {
             }
         });
         acc / self.weight_sum
+    }
+
+    /// The patch rows `[lo, hi)` of a patch centred on field row `row` that lie within a
+    /// field of `field_rows` rows (the rest reach beyond its axial ends).
+    pub fn rows_within(&self, row: usize, field_rows: usize) -> (usize, usize) {
+        let half = self.rows / 2;
+        let lo = half.saturating_sub(row).min(self.rows);
+        let hi = (field_rows + half).saturating_sub(row).min(self.rows);
+        (lo, hi.max(lo))
+    }
+
+    /// Whether every cell of the patch centred at `(row, col)` that lies within the field is
+    /// observed: the patch is then *banded*, its mask one on [`Self::rows_within`] and zero
+    /// elsewhere, known without reading it (`super::patch_distances`).
+    pub fn is_banded(
+        &self,
+        observed: &[bool],
+        grid: (usize, usize),
+        row: usize,
+        col: usize,
+    ) -> bool {
+        let mut banded = true;
+        self.visit(grid, row, col, |_, cell| {
+            if let Some(i) = cell {
+                banded &= observed[i];
+            }
+        });
+        banded
     }
 
     /// Calls `f(k, cell)` for each patch position `k` with the grid cell index it covers
@@ -195,13 +207,15 @@ struct PatchCentre {
     col: u32,
     mean: f64,
     scale: f64,
+    /// [`PatchShape::is_banded`].
+    banded: bool,
 }
 
 /// The candidate side of one landmark's keypoint patches, kept compact: the compared field
 /// once (`rows x cols` f32, NaN where unobserved) and each keypoint's centre and z-score. A
-/// keypoint's patch `b` ([`Self::patch_into`], `P` values) and the GEMM's factor
-/// `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`, [`Self::factor_into`]) are built from them for
-/// the comparison that needs them. The patches overlap: 64 keypoints' 9 x 33 cells are 4.6
+/// keypoint's patch `b` ([`Self::patch_into`], `P` values) and the candidate's factor of the
+/// distances' matrix products (`super::patch_distances::PatchFactor`) are built from them
+/// for the comparison that needs them. The patches overlap: 64 keypoints' 9 x 33 cells are 4.6
 /// times the 16 x 256 field, so the field's 16 KB replace about 43 KB of patch values on
 /// the full tier's landmarks (a landmark with its prepared view 76 -> 50 KB, the same 49-50
 /// KB in every corridor and sensor; `docs/measurements.md`, "Long logs"), for about 2 % of a
@@ -238,6 +252,7 @@ impl CandidatePatches {
                     col: kp.col as u32,
                     mean,
                     scale,
+                    banded: shape.is_banded(observed, grid, kp.row, kp.col),
                 }
             })
             .collect();
@@ -258,6 +273,16 @@ impl CandidatePatches {
         self.centres.len()
     }
 
+    /// Whether keypoint `j`'s patch is banded ([`PatchShape::is_banded`]).
+    pub fn is_banded(&self, j: usize) -> bool {
+        self.centres[j].banded
+    }
+
+    /// Keypoint `j`'s patch rows within the field ([`PatchShape::rows_within`]).
+    pub fn rows_within(&self, shape: &PatchShape, j: usize) -> (usize, usize) {
+        shape.rows_within(self.centres[j].row as usize, self.grid.0)
+    }
+
     /// Heap bytes held (the field and the centres).
     pub fn heap_bytes(&self) -> usize {
         4 * self.field.len() + self.centres.len() * std::mem::size_of::<PatchCentre>()
@@ -272,30 +297,6 @@ impl CandidatePatches {
             j,
             out,
         });
-    }
-
-    /// Builds the candidate factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) of
-    /// [`distances`] in `buf`, resized to it (reused from comparison to comparison: a fresh
-    /// 180-230 KB matrix a pair cost a third of the pair's time in page faults and zeroing).
-    /// Every entry is written.
-    pub fn factor_into(&self, shape: &PatchShape, buf: &mut Mat<f32>) {
-        buf.resize_with(3 * shape.len(), self.count(), |_, _| 0.0);
-        let mut patch = vec![0.0f32; shape.len()];
-        for j in 0..self.count() {
-            self.patch_into(shape, j, &mut patch);
-            pulp::Arch::new().dispatch(FillFactor {
-                values: &patch,
-                weights: &shape.weights,
-                column: buf.col_as_slice_mut(j),
-            });
-        }
-    }
-
-    /// The factor as an owned matrix (tests, one-off comparisons).
-    pub fn factor(&self, shape: &PatchShape) -> Mat<f32> {
-        let mut buf = Mat::new();
-        self.factor_into(shape, &mut buf);
-        buf
     }
 }
 
@@ -356,152 +357,8 @@ impl pulp::WithSimd for FillPatch<'_> {
     }
 }
 
-/// The body of [`CandidatePatches::factor_into`] for one keypoint: branch-free (an
-/// unobserved cell's NaN masked to +0 bit by bit, as the zeros the factor was once initialised
-/// with), so that the compiler vectorises it at the CPU's width under [`pulp`] dispatch, as
-/// [`Ratio`].
-struct FillFactor<'a> {
-    values: &'a [f32],
-    weights: &'a [f32],
-    column: &'a mut [f32],
-}
-
-impl pulp::WithSimd for FillFactor<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let p = self.weights.len();
-        let (mask, rest) = self.column.split_at_mut(p);
-        let (square, rest) = rest.split_at_mut(p);
-        let cells = self.values.iter().zip(self.weights);
-        let out = mask.iter_mut().zip(square.iter_mut()).zip(rest.iter_mut());
-        for ((&b, &w), ((m, sq), lin)) in cells.zip(out) {
-            let keep = 0u32.wrapping_sub(u32::from(!b.is_nan()));
-            *m = f32::from_bits(1.0f32.to_bits() & keep);
-            *sq = f32::from_bits((w * b * b).to_bits() & keep);
-            *lin = f32::from_bits((-2.0 * b).to_bits() & keep);
-        }
-    }
-}
-
-/// The query factors of one landmark under one heading: `[w m_a a^2 | m_a | w m_a a]`
-/// (`N x 3P`, numerator) and `[w m_a]` (`N x P`, denominator), built from its patches
-/// ([`CandidatePatches`]); `flipped` reverses each patch (heading 180°).
-#[derive(Clone, Debug)]
-pub struct QueryPatches {
-    /// `N x 3P`.
-    pub numerator: Mat<f32>,
-    /// `N x P`.
-    pub denominator: Mat<f32>,
-}
-
-impl QueryPatches {
-    /// Rearranges a landmark's candidate patches into query factors.
-    pub fn from_candidate(shape: &PatchShape, cand: &CandidatePatches, flipped: bool) -> Self {
-        let p = shape.len();
-        let n = cand.count();
-        let mut numerator = Mat::<f32>::zeros(n, 3 * p);
-        let mut denominator = Mat::<f32>::zeros(n, p);
-        let mut values = vec![0.0f32; p];
-        for i in 0..n {
-            cand.patch_into(shape, i, &mut values);
-            for k in 0..p {
-                // Source position: reversed patch under the flip; weights are symmetric.
-                let src = if flipped { p - 1 - k } else { k };
-                let a = values[src];
-                if !a.is_nan() {
-                    let w = shape.weights[k];
-                    numerator[(i, k)] = w * a * a;
-                    numerator[(i, p + k)] = 1.0;
-                    numerator[(i, 2 * p + k)] = w * a;
-                    denominator[(i, k)] = w;
-                }
-            }
-        }
-        Self {
-            numerator,
-            denominator,
-        }
-    }
-
-    /// Number of keypoints `N`.
-    pub fn count(&self) -> usize {
-        self.numerator.nrows()
-    }
-}
-
-/// All patch distances `N_i x N_j` between query and candidate keypoints (two GEMMs);
-/// `+inf` where the mutually observed weight is below `min_overlap * sum w`. `cand`: the
-/// candidate's factor ([`CandidatePatches::factor`]).
-pub fn distances(
-    shape: &PatchShape,
-    query: &QueryPatches,
-    cand: MatRef<'_, f32>,
-    min_overlap: f64,
-) -> Mat<f32> {
-    let (ni, nj, p) = (query.count(), cand.ncols(), shape.len());
-    let mut num = Mat::<f32>::zeros(ni, nj);
-    let mut den = Mat::<f32>::zeros(ni, nj);
-    if ni == 0 || nj == 0 {
-        return num;
-    }
-    matmul(
-        num.as_mut(),
-        Accum::Replace,
-        query.numerator.as_ref(),
-        cand,
-        1.0f32,
-        Par::Seq,
-    );
-    let cand_mask: MatRef<'_, f32> = cand.subrows(0, p);
-    matmul(
-        den.as_mut(),
-        Accum::Replace,
-        query.denominator.as_ref(),
-        cand_mask,
-        1.0f32,
-        Par::Seq,
-    );
-    let min_weight = (min_overlap * shape.weight_sum) as f32;
-    pulp::Arch::new().dispatch(Ratio {
-        num: &mut num,
-        den: &den,
-        min_weight,
-    });
-    num
-}
-
-/// The division pass of [`distances`] (`num <- max(num, 0) / den`, `+inf` where `den` is
-/// below `min_weight`): column slices and a branch-free body that the compiler vectorises,
-/// under [`pulp`] dispatch so at the CPU's full width (IEEE division: the same bits on every
-/// instruction set).
-struct Ratio<'a> {
-    num: &'a mut Mat<f32>,
-    den: &'a Mat<f32>,
-    min_weight: f32,
-}
-
-impl pulp::WithSimd for Ratio<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        for j in 0..self.num.ncols() {
-            let dens = self.den.col_as_slice(j);
-            for (n, &d) in self.num.col_as_slice_mut(j).iter_mut().zip(dens) {
-                let ratio = n.max(0.0) / d;
-                *n = if d >= self.min_weight && d > 0.0 {
-                    ratio
-                } else {
-                    f32::INFINITY
-                };
-            }
-        }
-    }
-}
-
-/// Brute-force f64 reference of [`distances`] for one pair of patches (tests, docs).
+/// Brute-force f64 reference of [`super::patch_distances::distances`] for one pair of
+/// patches (tests, docs).
 pub fn distance_reference(
     shape: &PatchShape,
     a: &(Vec<f64>, Vec<bool>),

@@ -294,14 +294,35 @@ fn gemm_patch_distances_agree_with_brute_force() {
             }
         }
     }
-    for flipped in [false, true] {
-        let query = patches::QueryPatches::from_candidate(&shape, &own, flipped);
-        let dist = patches::distances(
-            &shape,
-            &query,
-            cand.factor(&shape).as_ref(),
-            c.min_patch_overlap_fraction,
+    // The data reach every block of the products: banded patches (whole, and cut by an
+    // axial end) and patches with holes, on both sides.
+    for side in [&own, &cand] {
+        let banded = (0..side.count()).filter(|&k| side.is_banded(k)).count();
+        let cut = (0..side.count())
+            .filter(|&k| side.is_banded(k) && side.rows_within(&shape, k) != (0, shape.rows))
+            .count();
+        assert!(
+            banded > 5 && cut > 0 && banded < side.count() - 5,
+            "{banded} {cut}"
         );
+    }
+    assert_distances_match_reference(&shape, &own, &pa, &cand, &pb, c.min_patch_overlap_fraction);
+}
+
+/// Every patch distance of `own` (query, both headings) against `cand` agrees with the f64
+/// brute force over the reference patches `pa`, `pb`.
+fn assert_distances_match_reference(
+    shape: &patches::PatchShape,
+    own: &patches::CandidatePatches,
+    pa: &[(Vec<f64>, Vec<bool>)],
+    cand: &patches::CandidatePatches,
+    pb: &[(Vec<f64>, Vec<bool>)],
+    min_overlap: f64,
+) {
+    let factor = patch_distances::PatchFactor::new(shape, cand);
+    for flipped in [false, true] {
+        let query = patch_distances::QueryPatches::from_candidate(shape, own, flipped);
+        let dist = patch_distances::distances(shape, &query, &factor, min_overlap);
         let mut finite = 0;
         for (i, qa) in pa.iter().enumerate() {
             let qa = if flipped {
@@ -313,9 +334,8 @@ fn gemm_patch_distances_agree_with_brute_force() {
                 qa.clone()
             };
             for (jj, qb) in pb.iter().enumerate() {
-                let want =
-                    patches::distance_reference(&shape, &qa, qb, c.min_patch_overlap_fraction);
-                let got = f64::from(dist[(i, jj)]);
+                let want = patches::distance_reference(shape, &qa, qb, min_overlap);
+                let got = f64::from(dist.get(i, jj).unwrap());
                 if want.is_finite() {
                     finite += 1;
                     // z-scored patches: distances ~1; f32 GEMM over ~900 terms: ~1e-5.
@@ -325,8 +345,48 @@ fn gemm_patch_distances_agree_with_brute_force() {
                 }
             }
         }
-        assert!(finite > 100);
+        assert!(finite > pa.len() * pb.len() / 4, "{finite}");
     }
+}
+
+#[test]
+fn patch_distances_of_banded_patches_at_the_axial_ends_agree_with_brute_force() {
+    // Keypoints on every row of a 16-row field, on a hole and beside it: banded patches of
+    // every band (cut by either axial end or whole) meet each other and patches with holes,
+    // under both headings.
+    let c = cfg();
+    let shape = patches::PatchShape::new(&c);
+    let grid = (16, 96);
+    let fields: Vec<Vec<f64>> = (0..2)
+        .map(|s| {
+            (0..grid.0 * grid.1)
+                .map(|i| ((i * (7 + 4 * s) + i / grid.1 * 3) % 17) as f64 * 0.1 - 0.8)
+                .collect()
+        })
+        .collect();
+    let observed: Vec<bool> = (0..grid.0 * grid.1)
+        .map(|i| !((5..8).contains(&(i / grid.1)) && (40..52).contains(&(i % grid.1))))
+        .collect();
+    let centres: Vec<(usize, usize)> = (0..grid.0)
+        .flat_map(|r| [(r, 5 + 3 * r), (r, 46), (r, 70 + r)])
+        .collect();
+    let kps = keypoints_at(&centres);
+    let side = |field: &[f64]| {
+        let compact = patches::CandidatePatches::new(&shape, field, &observed, grid, &kps);
+        let reference: Vec<_> = kps
+            .iter()
+            .map(|k| shape.extract(field, &observed, grid, k))
+            .collect();
+        (compact, reference)
+    };
+    let ((own, pa), (cand, pb)) = (side(&fields[0]), side(&fields[1]));
+    let bands: std::collections::BTreeSet<_> = (0..own.count())
+        .filter(|&k| own.is_banded(k))
+        .map(|k| own.rows_within(&shape, k))
+        .collect();
+    assert_eq!(bands.len(), 9, "{bands:?}");
+    assert!((0..own.count()).any(|k| !own.is_banded(k)));
+    assert_distances_match_reference(&shape, &own, &pa, &cand, &pb, c.min_patch_overlap_fraction);
 }
 
 /// Keypoints at `(row, col)` centres (the patch tests place them by hand).
@@ -344,26 +404,47 @@ fn keypoints_at(centres: &[(usize, usize)]) -> Vec<keypoints::Keypoint> {
 #[test]
 fn candidate_factor_is_the_same_from_a_reused_buffer() {
     // A comparison builds the candidate's factor in its thread's buffer, left over from the
-    // last pair: what that pair wrote (here NaN, more keypoints) must not reach this one.
+    // last pair: what that pair wrote (other values, more keypoints) must not reach this one.
     let shape = patches::PatchShape::new(&cfg());
     let p = shape.len();
-    // A 12 x 40 field of small integers with holes, three keypoints (one near the axial
-    // end, one whose patch wraps around the circumference).
-    let grid = (12, 40);
+    // A 12 x 80 field of small integers with holes in its first half, five keypoints (one
+    // near the axial end, one whose patch wraps around the circumference, two in the half
+    // without holes: banded, whole and cut by the axial end).
+    let grid = (12, 80);
     let field: Vec<f64> = (0..grid.0 * grid.1)
         .map(|i| ((i * 7) % 13) as f64 - 6.0)
         .collect();
-    let observed: Vec<bool> = (0..field.len()).map(|i| i % 5 != 0).collect();
-    let kps = keypoints_at(&[(6, 20), (2, 3), (8, 38)]);
+    let observed: Vec<bool> = (0..field.len())
+        .map(|i| i % 5 != 0 || i % grid.1 >= 40)
+        .collect();
+    let kps = keypoints_at(&[(6, 20), (2, 3), (8, 38), (6, 60), (1, 58)]);
     let cand = patches::CandidatePatches::new(&shape, &field, &observed, grid, &kps);
-    let fresh = cand.factor(&shape);
-    let mut reused = Mat::<f32>::from_fn(3 * p, 10, |_, _| f32::NAN);
-    cand.factor_into(&shape, &mut reused);
-    assert_eq!((reused.nrows(), reused.ncols()), (3 * p, 3));
-    for (j, kp) in kps.iter().enumerate() {
+    let fresh = patch_distances::PatchFactor::new(&shape, &cand);
+    let other: Vec<f64> = field.iter().map(|v| v * 0.5 + 1.0).collect();
+    let mut reused = patch_distances::PatchFactor::new(
+        &shape,
+        &patches::CandidatePatches::new(
+            &shape,
+            &other,
+            &observed,
+            grid,
+            &keypoints_at(&[(5, 5); 10]),
+        ),
+    );
+    reused.fill(&shape, &cand);
+    assert_eq!(
+        (reused.matrix().nrows(), reused.matrix().ncols()),
+        (3 * p, 5)
+    );
+    // Banded first, then the rest, each in the keypoints' order.
+    let order: Vec<usize> = (0..5).map(|col| fresh.keypoint(col)).collect();
+    assert_eq!(order, [3, 4, 0, 1, 2]);
+    for col in 0..5 {
+        assert_eq!(reused.keypoint(col), order[col]);
+        let kp = &kps[order[col]];
         // Small integers and their z-score: the f32 field is exact, so are the values.
         let (values, mask) = shape.extract(&field, &observed, grid, kp);
-        assert!(mask.iter().any(|&m| !m) && mask.iter().filter(|&&m| m).count() > p / 2);
+        assert_eq!(mask.iter().all(|&m| m), col == 0, "{col}");
         for k in 0..p {
             let b = values[k] as f32;
             let want = if mask[k] {
@@ -372,7 +453,8 @@ fn candidate_factor_is_the_same_from_a_reused_buffer() {
                 [0.0; 3]
             };
             for (block, w) in want.iter().enumerate() {
-                let (got, again) = (fresh[(block * p + k, j)], reused[(block * p + k, j)]);
+                let row = block * p + k;
+                let (got, again) = (fresh.matrix()[(row, col)], reused.matrix()[(row, col)]);
                 assert_eq!(got.to_bits(), w.to_bits(), "cell {k}, block {block}");
                 assert_eq!(
                     again.to_bits(),
@@ -380,6 +462,18 @@ fn candidate_factor_is_the_same_from_a_reused_buffer() {
                     "reused: cell {k}, block {block}"
                 );
             }
+        }
+    }
+    // The band sums too: the same distances bit for bit.
+    let query = patch_distances::QueryPatches::from_candidate(&shape, &cand, false);
+    let (d1, d2) = (
+        patch_distances::distances(&shape, &query, &fresh, 0.5),
+        patch_distances::distances(&shape, &query, &reused, 0.5),
+    );
+    for i in 0..5 {
+        for j in 0..5 {
+            let (x, y) = (d1.get(i, j).unwrap(), d2.get(i, j).unwrap());
+            assert_eq!(x.to_bits(), y.to_bits(), "{i} {j}");
         }
     }
 }
