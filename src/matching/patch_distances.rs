@@ -89,10 +89,11 @@ impl PatchFactor {
         let mut patch = vec![0.0f32; p];
         for (col, &k) in self.order.iter().enumerate() {
             cand.patch_into(shape, k as usize, &mut patch);
-            pulp::Arch::new().dispatch(FillFactor {
+            pulp::Arch::new().dispatch(FillColumn {
                 values: &patch,
                 weights: &shape.weights,
                 column: self.matrix.col_as_slice_mut(col),
+                blocks: |b: f32, w: f32| [1.0, w * b * b, -2.0 * b],
             });
         }
     }
@@ -159,57 +160,37 @@ fn lane_sum(x: &[f32], f: impl Fn(usize, f32) -> f32) -> f32 {
     total
 }
 
-/// The body of [`PatchFactor::fill`] for one keypoint: branch-free (an unobserved cell's NaN
-/// masked to +0 bit by bit, as the zeros the factor was once initialised with), so that the
+/// One keypoint's column of a factor, three blocks of `P` from its patch `values` and the
+/// weights: `blocks(v, w)` gives a cell's three entries (the candidate's `[1, w b^2, -2 b]`,
+/// the query's transposed `[w a^2, 1, w a]`), an unobserved cell's (NaN) masked to +0 bit by
+/// bit, as the zeros the factors were once initialised with. Branch-free, so that the
 /// compiler vectorises it at the CPU's width under [`pulp`] dispatch, as [`Ratio`].
-struct FillFactor<'a> {
+struct FillColumn<'a, F> {
     values: &'a [f32],
     weights: &'a [f32],
     column: &'a mut [f32],
+    blocks: F,
 }
 
-impl pulp::WithSimd for FillFactor<'_> {
+impl<F: Fn(f32, f32) -> [f32; 3]> pulp::WithSimd for FillColumn<'_, F> {
     type Output = ();
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
         let p = self.weights.len();
-        let (mask, rest) = self.column.split_at_mut(p);
-        let (square, rest) = rest.split_at_mut(p);
+        let (first, rest) = self.column.split_at_mut(p);
+        let (second, third) = rest.split_at_mut(p);
         let cells = self.values.iter().zip(self.weights);
-        let out = mask.iter_mut().zip(square.iter_mut()).zip(rest.iter_mut());
-        for ((&b, &w), ((m, sq), lin)) in cells.zip(out) {
-            let keep = 0u32.wrapping_sub(u32::from(!b.is_nan()));
-            *m = f32::from_bits(1.0f32.to_bits() & keep);
-            *sq = f32::from_bits((w * b * b).to_bits() & keep);
-            *lin = f32::from_bits((-2.0 * b).to_bits() & keep);
-        }
-    }
-}
-
-/// The body of [`QueryPatches::from_candidate`] for one keypoint: its column
-/// `[w m_a a^2 ; m_a ; w m_a a]` of the transposed numerator, branch-free as [`FillFactor`].
-struct FillQuery<'a> {
-    values: &'a [f32],
-    weights: &'a [f32],
-    column: &'a mut [f32],
-}
-
-impl pulp::WithSimd for FillQuery<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let p = self.weights.len();
-        let (square, rest) = self.column.split_at_mut(p);
-        let (mask, lin) = rest.split_at_mut(p);
-        let cells = self.values.iter().zip(self.weights);
-        let out = square.iter_mut().zip(mask.iter_mut()).zip(lin.iter_mut());
-        for ((&a, &w), ((sq, m), l)) in cells.zip(out) {
-            let keep = 0u32.wrapping_sub(u32::from(!a.is_nan()));
-            *sq = f32::from_bits((w * a * a).to_bits() & keep);
-            *m = f32::from_bits(1.0f32.to_bits() & keep);
-            *l = f32::from_bits((w * a).to_bits() & keep);
+        let out = first
+            .iter_mut()
+            .zip(second.iter_mut())
+            .zip(third.iter_mut());
+        for ((&v, &w), ((x, y), z)) in cells.zip(out) {
+            let keep = 0u32.wrapping_sub(u32::from(!v.is_nan()));
+            let entries = (self.blocks)(v, w);
+            *x = f32::from_bits(entries[0].to_bits() & keep);
+            *y = f32::from_bits(entries[1].to_bits() & keep);
+            *z = f32::from_bits(entries[2].to_bits() & keep);
         }
     }
 }
@@ -289,10 +270,11 @@ impl QueryPatches {
                 values.reverse();
             }
             let column = numerator_t.col_as_slice_mut(row);
-            pulp::Arch::new().dispatch(FillQuery {
+            pulp::Arch::new().dispatch(FillColumn {
                 values: &values,
                 weights: &shape.weights,
                 column,
+                blocks: |a: f32, w: f32| [w * a * a, 1.0, w * a],
             });
             let column = numerator_t.col_as_slice(row);
             if row >= banded {
@@ -422,36 +404,22 @@ fn products(q: &QueryPatches, c: &PatchFactor, p: usize, num: &mut Mat<f32>, den
     fn block<'m>(m: MatMut<'m, f32>, r: &Range<usize>, c: &Range<usize>) -> MatMut<'m, f32> {
         m.submatrix_mut(r.start, c.start, r.len(), c.len())
     }
-    gemm(
-        block(num.as_mut(), &top, &left),
-        rows(&top, 2 * p, p),
-        cols(&left, 2 * p, p),
-        Accum::Replace,
-    );
-    gemm(
-        block(num.as_mut(), &top, &right),
-        rows(&top, 0, p),
-        cols(&right, 0, p),
-        Accum::Replace,
-    );
-    gemm(
-        block(num.as_mut(), &top, &right),
-        rows(&top, 2 * p, p),
-        cols(&right, 2 * p, p),
-        Accum::Add,
-    );
-    gemm(
-        block(num.as_mut(), &bottom, &left),
-        rows(&bottom, p, 2 * p),
-        cols(&left, p, 2 * p),
-        Accum::Replace,
-    );
-    gemm(
-        block(num.as_mut(), &bottom, &right),
-        rows(&bottom, 0, 3 * p),
-        cols(&right, 0, 3 * p),
-        Accum::Replace,
-    );
+    // (query rows, candidate columns, the inner range both factors share, accumulate).
+    let terms = [
+        (&top, &left, 2 * p, p, Accum::Replace), // bb: (w a) . (-2 b)
+        (&top, &right, 0, p, Accum::Replace),    // bp: (w a^2) . m_b
+        (&top, &right, 2 * p, p, Accum::Add),    //     + (w a) . (-2 m_b b)
+        (&bottom, &left, p, 2 * p, Accum::Replace), // pb
+        (&bottom, &right, 0, 3 * p, Accum::Replace), // pp
+    ];
+    for (r, c, from, len, accum) in terms {
+        gemm(
+            block(num.as_mut(), r, c),
+            rows(r, from, len),
+            cols(c, from, len),
+            accum,
+        );
+    }
     gemm(
         block(den.as_mut(), &bottom, &right),
         q.denominator.as_ref(),
