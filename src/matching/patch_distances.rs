@@ -39,8 +39,9 @@ use super::patches::{CandidatePatches, PatchShape};
 
 /// The candidate factor `[m_b ; w m_b b^2 ; -2 m_b b]` (`3P x N`) of one landmark, its
 /// columns in the order banded first ([`Self::keypoint`] maps a column to its keypoint),
-/// with each column's band. Built per comparison ([`Self::fill`]) into a buffer reused from comparison to comparison (a fresh 180-230 KB
-/// matrix a pair cost a third of the pair's time in page faults and zeroing).
+/// with each column's band. Built per comparison ([`Self::fill`]) into a buffer reused from
+/// comparison to comparison (a fresh 180-230 KB matrix a pair cost a third of the pair's
+/// time in page faults and zeroing).
 #[derive(Clone, Debug)]
 pub struct PatchFactor {
     matrix: Mat<f32>,
@@ -74,12 +75,7 @@ impl PatchFactor {
     /// Builds the factor of `cand` in this buffer; every entry is written.
     pub fn fill(&mut self, shape: &PatchShape, cand: &CandidatePatches) {
         let (n, p) = (cand.count(), shape.len());
-        self.order.clear();
-        self.order
-            .extend((0..n as u32).filter(|&j| cand.is_banded(j as usize)));
-        self.banded = self.order.len();
-        self.order
-            .extend((0..n as u32).filter(|&j| !cand.is_banded(j as usize)));
+        self.banded = banded_first(cand, &mut self.order);
         self.bands.clear();
         self.bands.extend(self.order.iter().map(|&k| {
             let (lo, hi) = cand.rows_within(shape, k as usize);
@@ -112,6 +108,17 @@ impl PatchFactor {
     pub fn matrix(&self) -> MatRef<'_, f32> {
         self.matrix.as_ref()
     }
+}
+
+/// `cand`'s keypoints into `order`, the banded ones first, each group in the keypoints'
+/// order; returns how many are banded.
+fn banded_first(cand: &CandidatePatches, order: &mut Vec<u32>) -> usize {
+    let n = cand.count() as u32;
+    order.clear();
+    order.extend((0..n).filter(|&k| cand.is_banded(k as usize)));
+    let banded = order.len();
+    order.extend((0..n).filter(|&k| !cand.is_banded(k as usize)));
+    banded
 }
 
 /// The `R + 1` prefix sums over a patch's rows of `square` (`w m v^2`, flat, `P`) and of the
@@ -239,12 +246,9 @@ impl QueryPatches {
                 (lo, hi)
             }
         };
-        let mut order: Vec<u32> = (0..n as u32)
-            .filter(|&k| cand.is_banded(k as usize))
-            .collect();
-        order.sort_by_key(|&k| band(k as usize));
-        let banded = order.len();
-        order.extend((0..n as u32).filter(|&k| !cand.is_banded(k as usize)));
+        let mut order = Vec::new();
+        let banded = banded_first(cand, &mut order);
+        order[..banded].sort_by_key(|&k| band(k as usize));
         let mut runs: Vec<BandRun> = Vec::new();
         for (row, &k) in order[..banded].iter().enumerate() {
             let (lo, hi) = band(k as usize);
