@@ -30,6 +30,7 @@ pub mod park;
 pub mod pipeline;
 mod radix;
 pub mod scan;
+pub mod spill;
 pub mod submap;
 pub mod survey;
 pub mod wall_normals;

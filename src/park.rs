@@ -16,14 +16,13 @@
 //! rebuilt round for a 400 m pipe), every length checked against the bytes left in the file
 //! before anything is allocated.
 
-use std::borrow::Borrow;
 use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::Path;
 
 use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
-use crate::survey::{MIN_RECORD_BYTES, Reader, err, write_records};
+use crate::survey::{MIN_RECORD_BYTES, Reader, Source, err, write_records};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"DECODPRK";
@@ -34,7 +33,7 @@ pub const FORMAT_VERSION: u32 = 2;
 const HEAD_BYTES: u64 = 20;
 
 /// Writes `landmarks` to `path`, exactly.
-pub fn write<L: Borrow<Landmark>>(path: &Path, landmarks: &[L]) -> Result<()> {
+pub fn write<L: Source>(path: &Path, landmarks: &[L]) -> Result<()> {
     let mut head = Vec::with_capacity(HEAD_BYTES as usize);
     head.extend_from_slice(MAGIC);
     head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());

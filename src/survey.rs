@@ -24,11 +24,13 @@ use std::borrow::Borrow;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use serde_json::Value;
 
 use crate::error::{DecodError, Result};
 use crate::landmark::{Descriptor, Landmark};
+use crate::spill::Held;
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"DECODSVY";
@@ -71,7 +73,7 @@ fn put_u32(out: &mut Vec<u8>, value: usize, path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path) -> Result<()> {
+pub(crate) fn encode_landmark(out: &mut Vec<u8>, l: &Landmark, path: &Path) -> Result<()> {
     let d = &l.descriptor;
     let mut fixed = vec![l.submap_stamp];
     for v in [
@@ -116,11 +118,7 @@ fn partial_path(path: &Path) -> PathBuf {
 /// landmark. A run's write stage held a copy of every landmark and the whole file in memory
 /// (0.35 GB of a 400 m pipe's 5,376 landmarks, the run's peak: `docs/measurements.md`, "Long
 /// logs").
-pub fn write_survey<L: Borrow<Landmark>>(
-    path: &Path,
-    header: &Value,
-    landmarks: &[L],
-) -> Result<()> {
+pub fn write_survey<L: Source>(path: &Path, header: &Value, landmarks: &[L]) -> Result<()> {
     let ids = header.get("joint_ids").and_then(Value::as_array);
     if ids.map(Vec::len) != Some(landmarks.len()) {
         return Err(err(path, "header.joint_ids must hold one id per landmark"));
@@ -140,19 +138,50 @@ pub fn write_survey<L: Borrow<Landmark>>(
     write_records(path, &head, landmarks, false)
 }
 
-/// Writes `head`, then one record per landmark (validated first: one that fails is refused
-/// before a byte is written), each encoded into one reused buffer and streamed to the file,
-/// which appears under `path` only once complete (written beside it, then renamed).
-/// `framed`: each record preceded by its length in bytes (u64), so that a reader can take
-/// them one at a time.
-pub(crate) fn write_records<L: Borrow<Landmark>>(
+/// A landmark a file's writer takes: one in memory, or one whose cells wait in a run's spill
+/// ([`Held`], read back when its record is written).
+pub trait Source {
+    /// The landmark where it is in memory.
+    fn in_memory(&self) -> Option<&Landmark>;
+    /// The whole landmark.
+    fn whole(&self) -> Result<Arc<Landmark>>;
+}
+
+impl<L: Borrow<Landmark>> Source for L {
+    fn in_memory(&self) -> Option<&Landmark> {
+        Some(self.borrow())
+    }
+    fn whole(&self) -> Result<Arc<Landmark>> {
+        Ok(Arc::new(self.borrow().clone()))
+    }
+}
+
+impl Source for Held {
+    fn in_memory(&self) -> Option<&Landmark> {
+        match self {
+            Held::Memory(l) => Some(l),
+            Held::Disk(_) => None,
+        }
+    }
+    fn whole(&self) -> Result<Arc<Landmark>> {
+        self.landmark()
+    }
+}
+
+/// Writes `head`, then one record per landmark (those in memory validated first: one that
+/// fails is refused before a byte is written; those in a spill were validated when they went
+/// there and are again when read back), each encoded into one reused buffer and streamed to
+/// the file, which appears under `path` only once complete (written beside it, then
+/// renamed). `framed`: each record preceded by its length in bytes (u64), so that a reader
+/// can take them one at a time.
+pub(crate) fn write_records<L: Source>(
     path: &Path,
     head: &[u8],
     landmarks: &[L],
     framed: bool,
 ) -> Result<()> {
-    for l in landmarks {
-        l.borrow().validate()?;
+    for l in landmarks.iter().filter_map(Source::in_memory) {
+        l.validate()?;
     }
     let partial = partial_path(path);
     let io = |source| DecodError::Io {
@@ -165,7 +194,10 @@ pub(crate) fn write_records<L: Borrow<Landmark>>(
         let mut out = Vec::new();
         for l in landmarks {
             out.clear();
-            encode_landmark(&mut out, l.borrow(), path)?;
+            match l.in_memory() {
+                Some(l) => encode_landmark(&mut out, l, path)?,
+                None => encode_landmark(&mut out, &*l.whole()?, path)?,
+            }
             if framed {
                 file.write_all(&(out.len() as u64).to_le_bytes())
                     .map_err(io)?;

@@ -7,7 +7,9 @@ the rebuilt one does not stand. Its landmarks (about 29 KB each) were held besid
 ones and their prepared views: the peak of a long log's run. While the rebuilt round runs they
 wait in a temporary file (``decod_rs._core.park_landmarks``, an exact copy), and the lists
 that held them are emptied in place. Where the rebuilt round does not stand, or fails, they
-are read back into the same lists, bit for bit. Where it stands, the extraction's own
+are read back into the same lists, bit for bit. A round whose cells already wait in the
+run's spill (:class:`decod_rs._core.Spill`, ``decod run``'s landmarks) holds a few hundred
+bytes a landmark and stays as it is. Where it stands, the extraction's own
 landmarks stay on disk until something asks for them again (``decod sweep``, which replays one
 extraction under several settings: :meth:`decod_rs.stages.extract.SubmapLandmarks.restored`);
 on the way back they had made the rest of the run 0.13 GB larger (400 m of pipe:
@@ -38,6 +40,8 @@ class Parked:
         if not self._holders or not self._holders[0]:
             return
         landmarks = list(self._holders[0])
+        if all(lm.on_disk for lm in landmarks):
+            return  # their cells already wait in the run's spill: nothing to set aside
         if any(list(h) != landmarks for h in self._holders[1:]):
             raise ValueError("parking: the lists do not hold the same landmarks")
         tmp = tempfile.TemporaryDirectory(prefix="decod-park-")

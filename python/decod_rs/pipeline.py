@@ -33,7 +33,7 @@ from decod_rs.config import MODES, Config
 from decod_rs.end_faces import tied_anchors
 from decod_rs.io import find_imu_topic
 from decod_rs.refinement import rebuild_report
-from decod_rs.run_files import check_run_dir, staged_run_dir
+from decod_rs.run_files import check_run_dir, landmark_spill, staged_run_dir
 from decod_rs.stages.axial import stage_one
 from decod_rs.stages.extract import Extracted, Topics, configure
 from decod_rs.stages.match import match_and_select
@@ -69,6 +69,7 @@ def run_log(
     map: bool = False,
     rerun: str | Path | None = None,
     survey: str | Path | None = None,
+    landmarks_on_disk: bool = True,
 ) -> RunSummary:
     """Run DeCOD on ``log`` and write the contract's files into ``out_dir`` (paper Alg. 1:
     extract -> match -> select -> optimise -> write).
@@ -84,6 +85,10 @@ def run_log(
     :mod:`decod_rs.visuals`. ``survey=OLD_RUN_DIR`` re-inspects an earlier run's corridor:
     the trajectory comes out in its frame, with its joint ids and a change report
     (:mod:`decod_rs.reinspection`); without ``preset``/``config_path`` its config is used.
+    ``landmarks_on_disk``: the landmarks' cells wait in a file beside ``out_dir`` (unlinked
+    at once on Unix: it leaves nothing behind) from their extraction on, so that memory does
+    not grow by 29 KB a landmark with the log (:mod:`decod_rs.stages.extract`); False keeps
+    them in memory. The outputs are the same either way, byte for byte.
     """
     srv = _checked_arguments(mode, preset, rerun, survey)  # fail before the run, not after it
     log, out = Path(log), check_run_dir(Path(out_dir))
@@ -104,7 +109,8 @@ def run_log(
         return cfg, auto, imu
 
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
-    one = stage_one(log, topics, configured, progress, keep_map=map or rerun is not None)
+    spill = landmark_spill(out) if landmarks_on_disk else None
+    one = stage_one(log, topics, configured, progress, map or rerun is not None, spill)
     head = {"preset": preset, "auto": one.auto, "imu_topic": imu_topic, "ingest": one.ingest}
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
     with staged_run_dir(out) as staging:

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from decod_rs import _core
 from decod_rs.graph import LoopConstraint
 
 FloatArray = NDArray[np.float64]
@@ -57,6 +58,7 @@ __all__ = [
     "LandmarkTable",
     "LoopTable",
     "check_run_dir",
+    "landmark_spill",
     "loops_to_constraints",
     "read_landmarks_csv",
     "read_loops_csv",
@@ -327,6 +329,17 @@ def check_run_dir(out: Path) -> Path:
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(20, "the run's output must be a directory", str(out))
     return out
+
+
+def landmark_spill(out: Path) -> _core.Spill:
+    """Where a run into ``out`` keeps its landmarks' cells (:class:`decod_rs._core.Spill`):
+    a file in the directory ``out`` is published in (created if missing), on the disk the
+    user chose for the run's files rather than in a temporary directory that may be held in
+    memory; on Unix it is unlinked at once and leaves nothing behind. ``OSError`` naming the
+    directory when no file can be created there."""
+    where = check_run_dir(out).resolve().parent
+    where.mkdir(parents=True, exist_ok=True)
+    return _core.Spill(where)
 
 
 @contextmanager

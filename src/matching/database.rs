@@ -40,6 +40,7 @@ use super::{
 use crate::config::MatchingConfig;
 use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
+use crate::spill::Held;
 
 /// Format name written into saved databases.
 pub const FORMAT_NAME: &str = "decod-landmark-database";
@@ -203,13 +204,13 @@ fn same_preparation(a: &MatchingConfig, b: &MatchingConfig) -> bool {
 /// [`eligible`] on prepared landmarks, skipping the scan comparison when the submaps' scan
 /// spans do not overlap (the common case; it made the check cost more than the coarse stage).
 fn eligible_prepared(q: &PreparedLandmark, c: &PreparedLandmark, cfg: &MatchingConfig) -> bool {
-    separated(&q.landmark, &c.landmark, cfg) && !shares_scans(q, c)
+    separated(&q.head, &c.head, cfg) && !shares_scans(q, c)
 }
 
 /// Whether two prepared landmarks' submaps share a scan (compared only when their scan spans
 /// overlap).
 fn shares_scans(q: &PreparedLandmark, c: &PreparedLandmark) -> bool {
-    q.scans_may_overlap(c) && share_a_scan(&q.landmark, &c.landmark)
+    q.scans_may_overlap(c) && share_a_scan(&q.head, &c.head)
 }
 
 fn separated(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> bool {
@@ -253,9 +254,9 @@ impl LandmarkDatabase {
         self.entries.is_empty()
     }
 
-    /// The landmark at `index`.
-    pub fn get(&self, index: usize) -> Option<&Landmark> {
-        self.entries.get(index).map(|e| &*e.landmark)
+    /// The landmark at `index` (in memory, or on disk: [`crate::spill`]).
+    pub fn get(&self, index: usize) -> Option<&Held> {
+        self.entries.get(index).map(|e| &e.source)
     }
 
     /// The config entries are prepared with.
@@ -279,7 +280,7 @@ impl LandmarkDatabase {
     /// already be stored or follow).
     pub fn add_view(&mut self, landmark: Landmark, boundary: u64) -> Result<usize> {
         if let Some(first) = self.entries.first() {
-            check_grids(&first.landmark, &landmark)?;
+            check_grids(&first.head, &landmark)?;
         }
         let prepared = PreparedLandmark::new(Arc::new(landmark), &self.config, &self.shape)?;
         self.coarse
@@ -376,7 +377,7 @@ impl LandmarkDatabase {
             ));
         }
         if let (Some(first), Some(l)) = (self.entries.first(), landmarks.first()) {
-            check_grids(&first.landmark, l)?;
+            check_grids(&first.head, l)?;
         }
         for pair in landmarks.windows(2) {
             check_grids(&pair[0], &pair[1])?;
@@ -410,10 +411,10 @@ impl LandmarkDatabase {
             ));
         }
         if let (Some(first), Some(p)) = (self.entries.first(), prepared.first()) {
-            check_grids(&first.landmark, &p.landmark)?;
+            check_grids(&first.head, &p.head)?;
         }
         for pair in prepared.windows(2) {
-            check_grids(&pair[0].landmark, &pair[1].landmark)?;
+            check_grids(&pair[0].head, &pair[1].head)?;
         }
         self.store(prepared, boundaries)
     }
@@ -534,14 +535,14 @@ impl LandmarkDatabase {
             return queries
                 .par_iter()
                 .enumerate()
-                .map(|(k, q)| self.query_in(&q.landmark, cfg, context(k)))
+                .map(|(k, q)| self.query_in(&*q.source.landmark()?, cfg, context(k)))
                 .collect();
         }
         if let (Some(first), Some(q)) = (self.entries.first(), queries.first()) {
-            check_grids(&first.landmark, &q.landmark)?;
+            check_grids(&first.head, &q.head)?;
         }
         for pair in queries.windows(2) {
-            check_grids(&pair[0].landmark, &pair[1].landmark)?;
+            check_grids(&pair[0].head, &pair[1].head)?;
         }
         Ok(queries
             .par_iter()
@@ -640,7 +641,7 @@ impl LandmarkDatabase {
         let (Some(centre), Some(entry)) = (placed(best), self.entries.get(best)) else {
             return Vec::new();
         };
-        let d = &entry.landmark.descriptor;
+        let d = &entry.head.descriptor;
         let radius = cfg.retrieval_neighbour_extents * d.rows as f64 * d.cell_z_m;
         let boundary = self.boundaries.get(best);
         eligible
@@ -678,7 +679,7 @@ impl LandmarkDatabase {
         ctx: QueryContext,
     ) -> Result<QueryResult> {
         if let Some(first) = self.entries.first() {
-            check_grids(&first.landmark, query)?;
+            check_grids(&first.head, query)?;
         }
         // Entries prepared with another config are re-prepared (correct, slower).
         let reprepared;
@@ -690,7 +691,7 @@ impl LandmarkDatabase {
                 reprepared = self
                     .entries
                     .iter()
-                    .map(|e| PreparedLandmark::new(e.landmark.clone(), cfg, &shape).map(Arc::new))
+                    .map(|e| PreparedLandmark::new(e.source.clone(), cfg, &shape).map(Arc::new))
                     .collect::<Result<Vec<_>>>()?;
                 (&reprepared, shape)
             };
@@ -896,10 +897,10 @@ fn runner_up<'p>(
     placed: Placement<'_>,
     cfg: &MatchingConfig,
 ) -> Option<&'p (usize, PairResult)> {
-    let best_stamp = best.map(|b| entries[b.0].landmark.submap_stamp);
+    let best_stamp = best.map(|b| entries[b.0].head.submap_stamp);
     let boundary = |i: usize| boundaries.get(i).copied().unwrap_or(u64::MAX - i as u64);
     let same_place = best.and_then(|(i, p)| {
-        let radius = cfg.runner_up_same_place_rows * entries[*i].landmark.descriptor.cell_z_m;
+        let radius = cfg.runner_up_same_place_rows * entries[*i].head.descriptor.cell_z_m;
         (radius > 0.0)
             .then(|| placed.implied(*i, p))
             .flatten()
@@ -909,7 +910,7 @@ fn runner_up<'p>(
     for item in pairs {
         let same = best.is_some_and(|b| boundary(b.0) == boundary(item.0));
         let excluded = best_stamp.is_some_and(|t| {
-            (entries[item.0].landmark.submap_stamp - t).abs() < cfg.runner_up_exclusion_s
+            (entries[item.0].head.submap_stamp - t).abs() < cfg.runner_up_exclusion_s
         });
         let merged = same_place.is_some_and(|(at, radius)| {
             placed
@@ -933,7 +934,7 @@ fn decide(
     family: usize,
     cfg: &MatchingConfig,
 ) -> QueryResult {
-    let query = &*q.landmark;
+    let query = &*q.head;
     let best = best_pair(pairs);
     let second = runner_up(best, pairs, entries, boundaries, placed, cfg);
     let mut result = QueryResult {
@@ -960,7 +961,7 @@ fn decide(
         }
         return result;
     };
-    let c = &entries[*index].landmark;
+    let c = &entries[*index].head;
     result.candidate_index = Some(*index);
     result.candidate_stamp = c.submap_stamp;
     result.candidate_origin_in_submap = c.origin_in_submap;
@@ -985,7 +986,11 @@ impl LandmarkDatabase {
             format: FORMAT_NAME.into(),
             version: FORMAT_VERSION,
             config: Some(self.config.clone()),
-            landmarks: self.entries.iter().map(|e| (*e.landmark).clone()).collect(),
+            landmarks: self
+                .entries
+                .iter()
+                .map(|e| e.source.landmark().map(|l| (*l).clone()))
+                .collect::<Result<_>>()?,
             boundaries: Some(self.boundaries.clone()),
             positions: Some(
                 self.positions

@@ -34,6 +34,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::MatchingConfig;
 use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
+use crate::spill::Held;
 
 pub use database::{LandmarkDatabase, QueryResult};
 pub use heading::Heading;
@@ -114,8 +115,12 @@ fn one() -> f64 {
 /// Per-landmark work done once: normalised field, keypoints, patches.
 #[derive(Clone, Debug)]
 pub struct PreparedLandmark {
-    /// The landmark.
-    pub landmark: Arc<Landmark>,
+    /// The landmark's fields without its cells ([`Landmark::head`]): a view keeps what it
+    /// compares, not the cells it was prepared from, so that a run's landmarks can wait on
+    /// disk ([`crate::spill`]) while their views are matched.
+    pub head: Arc<Landmark>,
+    /// The landmark prepared (in memory or on disk): for what needs its cells again.
+    pub source: Held,
     /// Observed mask as a bitset (bit `i` = flat cell `i`), heading 0 (after
     /// [`normalise::smooth_along_p`] filled isolated gaps, if enabled).
     observed_bits: Vec<u64>,
@@ -149,27 +154,32 @@ fn bitset(bits: impl Iterator<Item = bool>) -> Vec<u64> {
 impl PreparedLandmark {
     /// Normalises, detects keypoints and packs patches (validates the landmark first); keeps
     /// the forward coarse signature only, all a database entry is indexed by.
-    pub fn new(landmark: Arc<Landmark>, cfg: &MatchingConfig, shape: &PatchShape) -> Result<Self> {
-        Self::prepare(landmark, cfg, shape, false)
+    pub fn new(
+        landmark: impl Into<Held>,
+        cfg: &MatchingConfig,
+        shape: &PatchShape,
+    ) -> Result<Self> {
+        Self::prepare(landmark.into(), cfg, shape, false)
     }
 
     /// [`Self::new`] for a query: with all of its coarse signatures
     /// ([`retrieval::query_signatures`], both headings at every shift), computed beside the
     /// keypoints and patches (`rayon::join`): they took a tenth of a coarse query on one core.
     pub fn new_query(
-        landmark: Arc<Landmark>,
+        landmark: impl Into<Held>,
         cfg: &MatchingConfig,
         shape: &PatchShape,
     ) -> Result<Self> {
-        Self::prepare(landmark, cfg, shape, true)
+        Self::prepare(landmark.into(), cfg, shape, true)
     }
 
     fn prepare(
-        landmark: Arc<Landmark>,
+        source: Held,
         cfg: &MatchingConfig,
         shape: &PatchShape,
         query: bool,
     ) -> Result<Self> {
+        let landmark = source.landmark()?;
         landmark.validate()?;
         let d = &landmark.descriptor;
         let grid = (d.rows, d.cols);
@@ -225,13 +235,14 @@ impl PreparedLandmark {
             flipped_bits: bitset(observed.iter().rev().copied()),
             keypoints,
             patches,
-            landmark,
+            head: Arc::new(landmark.head()),
+            source,
         })
     }
 
     /// Grid size `(rows, cols)`.
     pub fn grid(&self) -> (usize, usize) {
-        (self.landmark.descriptor.rows, self.landmark.descriptor.cols)
+        (self.head.descriptor.rows, self.head.descriptor.cols)
     }
 
     /// Whether the two submaps' scan-stamp ranges overlap (if not, they share no scan).
@@ -239,16 +250,23 @@ impl PreparedLandmark {
         self.scan_span.0 <= other.scan_span.1 && other.scan_span.0 <= self.scan_span.1
     }
 
-    /// Approximate heap bytes held by this prepared landmark: the landmark (descriptor,
-    /// mask, normals, contour, scan stamps), the patches, masks and signatures.
+    /// Approximate heap bytes held by this prepared landmark: its head, the landmark's cells
+    /// where it is in memory (descriptor, mask, normals, contour, scan stamps), the patches,
+    /// masks and signatures.
     pub fn heap_bytes(&self) -> usize {
-        let l = &*self.landmark;
-        let d = &l.descriptor;
-        let f64s = d.normal_e1.len() + d.normal_e2.len();
-        let landmark = 8 * (f64s + l.scan_stamps.len() + 2 * l.contour_e1e2_m.len())
-            + 4 * d.offsets_m.len()
-            + d.observed.len()
-            + std::mem::size_of::<Landmark>();
+        let bytes = |l: &Landmark| {
+            let d = &l.descriptor;
+            let f64s = d.normal_e1.len() + d.normal_e2.len();
+            8 * (f64s + l.scan_stamps.len() + 2 * l.contour_e1e2_m.len())
+                + 4 * d.offsets_m.len()
+                + d.observed.len()
+                + std::mem::size_of::<Landmark>()
+        };
+        let landmark = bytes(&self.head)
+            + match &self.source {
+                Held::Memory(l) => bytes(l),
+                Held::Disk(_) => 0,
+            };
         let patches = self.patches.heap_bytes();
         let bits = 8 * (self.observed_bits.len() + self.flipped_bits.len());
         let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
@@ -318,7 +336,7 @@ pub fn compare(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> 
 /// passed on its own. In the generalisation matrix this changed only shield tunnel runs: 18
 /// more loops (7,071 -> 7,089), none wrong, registry joints within 1 % in one more run.
 pub fn compare_pairs(
-    landmarks: &[Arc<Landmark>],
+    landmarks: &[Held],
     pairs: &[(usize, usize)],
     cfg: &MatchingConfig,
     same_heading: bool,
@@ -326,7 +344,7 @@ pub fn compare_pairs(
     use rayon::prelude::*;
     check_pair_indices(pairs, landmarks.len())?;
     for &(i, j) in pairs {
-        check_grids(&landmarks[i], &landmarks[j])?;
+        check_grids(landmarks[i].head(), landmarks[j].head())?;
     }
     let mut used = vec![false; landmarks.len()];
     for &(i, j) in pairs {
@@ -357,14 +375,15 @@ pub fn compare_pairs(
 /// ([`LandmarkDatabase::extend_prepared`]) and the queries
 /// ([`LandmarkDatabase::query_batch_prepared`]) then share them (beyond the paper: each
 /// landmark was prepared twice per round, ~0.1 s of a 64-beam round). The landmarks must
-/// share one grid.
+/// share one grid; those on disk ([`crate::spill`]) are read back one at a time, and their
+/// views keep what they compare, not the cells.
 pub fn prepare_views(
-    landmarks: &[Arc<Landmark>],
+    landmarks: &[Held],
     cfg: &MatchingConfig,
 ) -> Result<Vec<Arc<PreparedLandmark>>> {
     use rayon::prelude::*;
     for pair in landmarks.windows(2) {
-        check_grids(&pair[0], &pair[1])?;
+        check_grids(pair[0].head(), pair[1].head())?;
     }
     let shape = PatchShape::new(cfg);
     landmarks
@@ -591,7 +610,7 @@ fn compare_heading(
     } else {
         0.0
     };
-    result.dz_m = sign * consensus.dz_cells * q.landmark.descriptor.cell_z_m;
+    result.dz_m = sign * consensus.dz_cells * q.head.descriptor.cell_z_m;
     let dp = sign * consensus.dp_cells / cols as f64;
     result.dp = if dp >= 0.5 { dp - 1.0 } else { dp };
     if cfg.verification && consensus.inliers < pair_floor(cfg) {

@@ -943,15 +943,26 @@ fn views_prepared_once_compare_and_query_like_fresh_ones() {
     // A run prepares each landmark once and shares it between the within-pass pairs, the
     // database and the queries: every result equals the one of the paths that prepare
     // their own (pairs under both headings and under one, coarse retrieval with 200 entries).
+    // The views are prepared from landmarks whose cells wait on disk (`crate::spill`), as a
+    // run's do: a view that read a cell from its head (empty there) would not compare alike.
     let c = cfg();
     let (db_landmarks, queries) = retrieval_set(Grid::tunnel(), 200, 20, 5);
-    let all: Vec<Arc<Landmark>> = db_landmarks
+    let all: Vec<Held> = db_landmarks
         .iter()
         .chain(&queries)
         .cloned()
-        .map(Arc::new)
+        .map(Held::from)
         .collect();
-    let views = prepare_views(&all, &c).unwrap();
+    let dir = std::env::temp_dir().join(format!("decod-views-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let spill = crate::spill::Spill::create(&dir).unwrap();
+    let on_disk: Vec<Held> = all
+        .iter()
+        .map(|h| spill.put(&h.landmark().unwrap()).unwrap())
+        .collect();
+    let views = prepare_views(&on_disk, &c).unwrap();
+    let in_memory = prepare_views(&all[..1], &c).unwrap();
+    assert!(views[0].heap_bytes() + 20_000 < in_memory[0].heap_bytes());
     let pairs: Vec<(usize, usize)> = (0..all.len() - 1)
         .map(|i| (i, (i * 7 + 3) % all.len()))
         .collect();
@@ -966,7 +977,9 @@ fn views_prepared_once_compare_and_query_like_fresh_ones() {
     let n = db_landmarks.len();
     let ids: Vec<u64> = (0..n as u64).map(|k| k / 2).collect();
     let mut fresh = LandmarkDatabase::new(&c);
-    fresh.extend_views(db_landmarks, ids.clone()).unwrap();
+    fresh
+        .extend_views(db_landmarks.clone(), ids.clone())
+        .unwrap();
     let mut shared = LandmarkDatabase::new(&c);
     shared
         .extend_prepared(views[..n].to_vec(), ids.clone(), &c)
@@ -977,15 +990,27 @@ fn views_prepared_once_compare_and_query_like_fresh_ones() {
         .unwrap();
     assert_eq!(got, fresh.query_batch(&queries, &c).unwrap());
     assert!(got.iter().filter(|r| r.accepted).count() >= 5);
-    // Views prepared under another config are refused, not stored.
+    // Under another config the entries are prepared again, from the cells on disk.
     let mut other = c.clone();
     other.max_keypoints += 1;
+    let mut again = LandmarkDatabase::new(&c);
+    again
+        .extend_views(db_landmarks.clone(), ids.clone())
+        .unwrap();
+    let by = |db: &LandmarkDatabase| {
+        db.query_batch_prepared(&picked, None, &other, database::Eligibility::WithinRun)
+            .unwrap()
+    };
+    assert_eq!(by(&shared), by(&again));
+    assert_eq!(shared.get(3).map(Held::on_disk), Some(true));
+    // Views prepared under another config are refused, not stored.
     let mut db = LandmarkDatabase::new(&other);
     assert!(
         db.extend_prepared(views[..2].to_vec(), vec![0, 1], &c)
             .is_err()
     );
     assert!(db.is_empty());
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

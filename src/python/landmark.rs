@@ -1,6 +1,8 @@
 //! `decod_rs._core.Landmark`: one boundary with its descriptor, shared by the extraction and
-//! matching bindings. Immutable; arrays come out as fresh numpy arrays.
+//! matching bindings. Immutable; arrays come out as fresh numpy arrays. Its cells may wait on
+//! disk (`decod::spill`, `Spill.put`): they are then read back each time they are asked for.
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
@@ -8,22 +10,88 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
 use crate::landmark::{Descriptor, Landmark};
+use crate::spill::{Held, Spill};
 
 use super::arrays::{flat_to_numpy, rows_to_numpy, vec3, vector};
+use super::detached;
 use super::errors::to_py_err;
 
-/// A detected cross-sectional boundary (see `decod::landmark::Landmark`).
+/// A detected cross-sectional boundary (see `decod::landmark::Landmark`), in memory or with
+/// its cells on disk (`decod::spill::Held`).
 #[pyclass(name = "Landmark", module = "decod_rs._core", frozen)]
 pub(crate) struct PyLandmark {
-    pub(crate) inner: Arc<Landmark>,
+    pub(crate) held: Held,
 }
 
 impl PyLandmark {
     /// Wraps a core landmark.
     pub(crate) fn new(inner: Landmark) -> Self {
         Self {
-            inner: Arc::new(inner),
+            held: Held::from(inner),
         }
+    }
+
+    /// Wraps a landmark in memory or on disk.
+    pub(crate) fn from_held(held: Held) -> Self {
+        Self { held }
+    }
+
+    /// The landmark's fields (its cells empty where they are on disk: `Held::head`).
+    fn head(&self) -> &Landmark {
+        self.held.head()
+    }
+
+    /// The whole landmark, read back where its cells are on disk.
+    pub(crate) fn whole(&self) -> PyResult<Arc<Landmark>> {
+        self.held.landmark().map_err(to_py_err)
+    }
+}
+
+/// The landmarks held by `items` (shared, not copied; those on disk stay there).
+pub(crate) fn held_of(items: &[PyRef<'_, PyLandmark>]) -> Vec<Held> {
+    items.iter().map(|l| l.held.clone()).collect()
+}
+
+/// A file a run's landmarks wait in while their views are matched (`decod::spill`): created
+/// in `directory` (on Unix unlinked at once: it leaves nothing behind), gone with the last
+/// landmark put in it.
+#[pyclass(name = "Spill", module = "decod_rs._core", frozen)]
+pub(crate) struct PySpill {
+    inner: Arc<Spill>,
+}
+
+#[pymethods]
+impl PySpill {
+    #[new]
+    fn py_new(directory: PathBuf) -> PyResult<Self> {
+        Ok(Self {
+            inner: Spill::create(&directory).map_err(to_py_err)?,
+        })
+    }
+    /// The landmarks with their cells written here, in their order: the same landmarks,
+    /// holding a few hundred bytes each instead of about 29 KB. Those already on disk are
+    /// given back as they are.
+    fn put(
+        &self,
+        py: Python<'_>,
+        landmarks: Vec<PyRef<'_, PyLandmark>>,
+    ) -> PyResult<Vec<PyLandmark>> {
+        let held = held_of(&landmarks);
+        let spill = Arc::clone(&self.inner);
+        let put = detached(py, move || {
+            held.into_iter()
+                .map(|h| match &h {
+                    Held::Memory(l) => spill.put(l),
+                    Held::Disk(_) => Ok(h),
+                })
+                .collect::<crate::Result<Vec<_>>>()
+        })?;
+        Ok(put.into_iter().map(PyLandmark::from_held).collect())
+    }
+    /// Bytes written so far.
+    #[getter]
+    fn bytes(&self) -> u64 {
+        self.inner.bytes()
     }
 }
 
@@ -124,85 +192,98 @@ impl PyLandmark {
     /// Stamp of the submap's anchor scan, seconds.
     #[getter]
     fn submap_stamp(&self) -> f64 {
-        self.inner.submap_stamp
+        self.head().submap_stamp
     }
     /// Stamps of the scans accumulated into the submap, `(K,)`.
     #[getter]
     fn scan_stamps<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.inner.scan_stamps)
+        PyArray1::from_slice(py, &self.head().scan_stamps)
     }
     /// Landmark origin in the submap frame, `(3,)` metres.
     #[getter]
     fn origin<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.inner.origin_in_submap)
+        PyArray1::from_slice(py, &self.head().origin_in_submap)
     }
     /// Unit corridor axis in the submap frame, `(3,)`.
     #[getter]
     fn axis<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.inner.axis_in_submap)
+        PyArray1::from_slice(py, &self.head().axis_in_submap)
     }
     /// Transverse basis vector e1 (gravity side) in the submap frame, `(3,)`.
     #[getter]
     fn e1<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.inner.e1_in_submap)
+        PyArray1::from_slice(py, &self.head().e1_in_submap)
     }
     /// Transverse basis vector e2 = axis x e1 in the submap frame, `(3,)`.
     #[getter]
     fn e2<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.inner.e2_in_submap)
+        PyArray1::from_slice(py, &self.head().e2_in_submap)
     }
     /// Reference contour at the column centres, `(cols, 2)` along (e1, e2) from the origin.
     #[getter]
     fn contour<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        rows_to_numpy(py, &self.inner.contour_e1e2_m)
+        rows_to_numpy(py, &self.whole()?.contour_e1e2_m)
     }
     /// Mean contour radius (section size), metres.
     #[getter]
     fn radius_m(&self) -> f64 {
-        self.inner.radius_m
+        self.head().radius_m
     }
     /// Detection strength (DoG response at the peak), metres.
     #[getter]
     fn strength(&self) -> f64 {
-        self.inner.strength
+        self.head().strength
     }
     /// Mean signed normal offsets, `(rows, cols)` metres (0 where unobserved); held in single
     /// precision (`decod::landmark::Descriptor::offsets_m`), given as float64.
     #[getter]
     fn descriptor<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let d = &self.inner.descriptor;
+        let l = self.whole()?;
+        let d = &l.descriptor;
         let values = d.offsets_m.iter().map(|&v| f64::from(v)).collect();
         flat_to_numpy(py, values, d.rows, d.cols)
     }
     /// Observed-cell mask, `(rows, cols)` bool.
     #[getter]
     fn mask<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<bool>>> {
-        let d = &self.inner.descriptor;
+        let l = self.whole()?;
+        let d = &l.descriptor;
         flat_to_numpy(py, d.observed.clone(), d.rows, d.cols)
     }
     /// n1(p) = n(p)^T e1 at the column centres, `(cols,)`.
     #[getter]
-    fn normal_e1<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.inner.descriptor.normal_e1)
+    fn normal_e1<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        Ok(PyArray1::from_slice(
+            py,
+            &self.whole()?.descriptor.normal_e1,
+        ))
     }
     /// n2(p) = n(p)^T e2 at the column centres, `(cols,)`.
     #[getter]
-    fn normal_e2<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        PyArray1::from_slice(py, &self.inner.descriptor.normal_e2)
+    fn normal_e2<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        Ok(PyArray1::from_slice(
+            py,
+            &self.whole()?.descriptor.normal_e2,
+        ))
+    }
+    /// Whether the cells wait on disk (`Spill.put`); they are read back when asked for.
+    #[getter]
+    fn on_disk(&self) -> bool {
+        self.held.on_disk()
     }
     /// Axial cell size, metres.
     #[getter]
     fn cell_z_m(&self) -> f64 {
-        self.inner.descriptor.cell_z_m
+        self.head().descriptor.cell_z_m
     }
     /// Contour perimeter, metres.
     #[getter]
     fn perimeter_m(&self) -> f64 {
-        self.inner.descriptor.perimeter_m
+        self.head().descriptor.perimeter_m
     }
     /// The landmark as JSON (lossless; `Landmark.from_json` reads it back).
     fn to_json(&self) -> PyResult<String> {
-        serde_json::to_string(&*self.inner).map_err(|e| PyValueError::new_err(e.to_string()))
+        serde_json::to_string(&*self.whole()?).map_err(|e| PyValueError::new_err(e.to_string()))
     }
     /// Reads a landmark written by `to_json`.
     #[staticmethod]
@@ -213,20 +294,21 @@ impl PyLandmark {
         Ok(Self::new(landmark))
     }
     fn __repr__(&self) -> String {
-        let o = self.inner.origin_in_submap;
+        let l = self.head();
+        let o = l.origin_in_submap;
+        let cells = l.descriptor.rows * l.descriptor.cols;
+        let observed = match &self.held {
+            Held::Memory(l) => format!("{}/{cells}", l.descriptor.observed_count()),
+            Held::Disk(_) => "on disk".into(),
+        };
         format!(
-            "Landmark(stamp={:.3}, origin=[{:.3}, {:.3}, {:.3}], strength={:.2e}, observed={}/{})",
-            self.inner.submap_stamp,
-            o[0],
-            o[1],
-            o[2],
-            self.inner.strength,
-            self.inner.descriptor.observed_count(),
-            self.inner.descriptor.rows * self.inner.descriptor.cols
+            "Landmark(stamp={:.3}, origin=[{:.3}, {:.3}, {:.3}], strength={:.2e}, observed={observed})",
+            l.submap_stamp, o[0], o[1], o[2], l.strength,
         )
     }
 }
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<PyLandmark>()
+    m.add_class::<PyLandmark>()?;
+    m.add_class::<PySpill>()
 }

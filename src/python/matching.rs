@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 use super::arrays::{flat_to_numpy, points_n3, rows_to_numpy};
 use super::detached;
 use super::errors::to_py_err;
-use super::landmark::PyLandmark;
+use super::landmark::{PyLandmark, held_of};
 use crate::config::MatchingConfig;
 use crate::error::DecodError;
 use crate::landmark::Landmark;
@@ -42,8 +42,9 @@ fn config_from_json(text: &str) -> PyResult<MatchingConfig> {
     Ok(cfg)
 }
 
-fn landmarks_of(items: &[PyRef<'_, PyLandmark>]) -> Vec<Arc<Landmark>> {
-    items.iter().map(|l| l.inner.clone()).collect()
+/// The whole landmarks of `items` (those on disk read back).
+fn landmarks_of(items: &[PyRef<'_, PyLandmark>]) -> PyResult<Vec<Arc<Landmark>>> {
+    items.iter().map(|l| l.whole()).collect()
 }
 
 /// One query/candidate comparison (see `decod::matching::PairResult`).
@@ -268,7 +269,7 @@ fn compare(
     config_json: &str,
 ) -> PyResult<PyPairResult> {
     let cfg = config_from_json(config_json)?;
-    let (q, c) = (query.inner.clone(), candidate.inner.clone());
+    let (q, c) = (query.whole()?, candidate.whole()?);
     let inner = detached(py, move || matching::compare(&q, &c, &cfg))?;
     Ok(PyPairResult { inner })
 }
@@ -285,7 +286,7 @@ fn compare_pairs(
     same_heading: bool,
 ) -> PyResult<Vec<PyPairResult>> {
     let cfg = config_from_json(config_json)?;
-    let ls = landmarks_of(&landmarks);
+    let ls = held_of(&landmarks);
     let results = detached(py, move || {
         matching::compare_pairs(&ls, &pairs, &cfg, same_heading)
     })?;
@@ -312,7 +313,7 @@ impl PyPreparedViews {
         config_json: &str,
     ) -> PyResult<Self> {
         let config = config_from_json(config_json)?;
-        let ls = landmarks_of(&landmarks);
+        let ls = held_of(&landmarks);
         let cfg = config.clone();
         let views = detached(py, move || matching::prepare_views(&ls, &cfg))?;
         Ok(Self { views, config })
@@ -372,7 +373,7 @@ impl PyLandmarkDatabase {
     }
     /// Prepares and stores a landmark; returns its index.
     fn add(&mut self, py: Python<'_>, landmark: PyRef<'_, PyLandmark>) -> PyResult<usize> {
-        let l = (*landmark.inner).clone();
+        let l = (*landmark.whole()?).clone();
         let db = &mut self.inner;
         detached(py, move || db.add(l))
     }
@@ -383,7 +384,7 @@ impl PyLandmarkDatabase {
         landmark: PyRef<'_, PyLandmark>,
         boundary: u64,
     ) -> PyResult<usize> {
-        let l = (*landmark.inner).clone();
+        let l = (*landmark.whole()?).clone();
         let db = &mut self.inner;
         detached(py, move || db.add_view(l, boundary))
     }
@@ -394,7 +395,7 @@ impl PyLandmarkDatabase {
         landmarks: Vec<PyRef<'_, PyLandmark>>,
         boundaries: Vec<u64>,
     ) -> PyResult<Vec<usize>> {
-        let ls: Vec<Landmark> = landmarks_of(&landmarks)
+        let ls: Vec<Landmark> = landmarks_of(&landmarks)?
             .iter()
             .map(|l| (**l).clone())
             .collect();
@@ -484,7 +485,7 @@ impl PyLandmarkDatabase {
         py: Python<'_>,
         landmarks: Vec<PyRef<'_, PyLandmark>>,
     ) -> PyResult<Vec<usize>> {
-        let ls: Vec<Landmark> = landmarks_of(&landmarks)
+        let ls: Vec<Landmark> = landmarks_of(&landmarks)?
             .iter()
             .map(|l| (**l).clone())
             .collect();
@@ -502,7 +503,7 @@ impl PyLandmarkDatabase {
         direction: Option<[f64; 3]>,
     ) -> PyResult<PyQueryResult> {
         let cfg = config_from_json(config_json)?;
-        let q = query.inner.clone();
+        let q = query.whole()?;
         let db = &self.inner;
         let inner = detached(py, move || match direction {
             Some(d) => db.query_directed(&q, &d, &cfg),
@@ -521,7 +522,7 @@ impl PyLandmarkDatabase {
         cross_session: bool,
     ) -> PyResult<Vec<PyQueryResult>> {
         let cfg = config_from_json(config_json)?;
-        let qs: Vec<Landmark> = landmarks_of(&queries)
+        let qs: Vec<Landmark> = landmarks_of(&queries)?
             .iter()
             .map(|l| (**l).clone())
             .collect();
@@ -541,7 +542,7 @@ impl PyLandmarkDatabase {
         config_json: &str,
     ) -> PyResult<(PyQueryResult, usize)> {
         let cfg = config_from_json(config_json)?;
-        let l = (*landmark.inner).clone();
+        let l = (*landmark.whole()?).clone();
         let db = &mut self.inner;
         let (inner, index) = detached(py, move || db.query_online(l, &cfg))?;
         Ok((PyQueryResult { inner }, index))
@@ -550,7 +551,7 @@ impl PyLandmarkDatabase {
     fn landmark(&self, index: usize) -> PyResult<PyLandmark> {
         self.inner
             .get(index)
-            .map(|l| PyLandmark::new(l.clone()))
+            .map(|l| PyLandmark::from_held(l.clone()))
             .ok_or_else(|| {
                 pyo3::exceptions::PyIndexError::new_err(format!(
                     "landmark index {index} out of range (database holds {})",
@@ -611,7 +612,7 @@ fn descriptor_change<'py>(
             format!("expected 0 or 180, got {heading_deg}"),
         )));
     };
-    let (q, c) = (query.inner.clone(), candidate.inner.clone());
+    let (q, c) = (query.whole()?, candidate.whole()?);
     let (rows, cols) = (q.descriptor.rows, q.descriptor.cols);
     let change = detached(py, move || {
         matching::change::aligned_change(&q, &c, heading, dz_m, dp, &cfg)

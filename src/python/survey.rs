@@ -2,15 +2,13 @@
 //! for landmarks a run sets aside while it rebuilds (`decod::park`).
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use pyo3::prelude::*;
 
 use super::detached;
 use super::errors::to_py_err;
-use super::landmark::PyLandmark;
+use super::landmark::{PyLandmark, held_of};
 use crate::error::DecodError;
-use crate::landmark::Landmark;
 use crate::park;
 use crate::survey::{self, FORMAT_VERSION, Survey};
 
@@ -26,7 +24,7 @@ fn write_survey(
     let header = serde_json::from_str(header_json)
         .map_err(|e| to_py_err(DecodError::invalid("header_json", e.to_string())))?;
     // The run's landmarks are shared with the writer, not copied (a long log's are 0.2 GB).
-    let landmarks: Vec<Arc<Landmark>> = landmarks.iter().map(|l| l.inner.clone()).collect();
+    let landmarks = held_of(&landmarks);
     detached(py, move || survey::write_survey(&path, &header, &landmarks))
 }
 
@@ -51,7 +49,7 @@ fn park_landmarks(
     path: PathBuf,
     landmarks: Vec<PyRef<'_, PyLandmark>>,
 ) -> PyResult<()> {
-    let landmarks: Vec<Arc<Landmark>> = landmarks.iter().map(|l| l.inner.clone()).collect();
+    let landmarks = held_of(&landmarks);
     detached(py, move || park::write(&path, &landmarks))
 }
 

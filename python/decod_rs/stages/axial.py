@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from decod_rs import _core
 from decod_rs.config import Config
 from decod_rs.stages.extract import Extracted, Topics, extract_stage
 from decod_rs.stages.extract import restitched as restitched_on
@@ -62,16 +63,22 @@ class StageOne:
 
 
 def stage_one(
-    log: Path, topics: Topics, configure: Configure, progress: bool, keep_map: bool
+    log: Path,
+    topics: Topics,
+    configure: Configure,
+    progress: bool,
+    keep_map: bool,
+    spill: _core.Spill | None = None,
 ) -> StageOne:
     """Configure and extract ``log``; where the odometry stalled along the axis
-    (:func:`stall_check`), configure and extract again on the restitched odometry."""
+    (:func:`stall_check`), configure and extract again on the restitched odometry.
+    ``spill``: where the landmarks' cells wait (:mod:`decod_rs.stages.extract`)."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     cfg, auto, imu = configure(topics)
     timings["configure"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    extraction, ingest = extract_stage(log, cfg, topics, progress, keep_map, imu)
+    extraction, ingest = extract_stage(log, cfg, topics, progress, keep_map, imu, spill)
     timings["extract"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     motion = stall_check(extraction, cfg, auto, progress)
@@ -81,7 +88,7 @@ def stage_one(
             write_tum(tum, extraction.scans[0], motion.poses)
             steady = (extraction.processor.points_topic, None, tum, extraction.imu_topic)
             cfg, auto, imu = configure(steady)
-            extraction, ingest = extract_stage(log, cfg, steady, progress, keep_map, imu)
+            extraction, ingest = extract_stage(log, cfg, steady, progress, keep_map, imu, spill)
     if motion.checked:
         timings["axial_check"] = time.perf_counter() - t0
     ingest["odometry_stall"] = motion.report()

@@ -1,6 +1,9 @@
 """Stage 1 of Algorithm 1 (paper Sec. III-A, III-B): the config (measured by ``auto`` or a
 preset), then the Rust ``LogProcessor`` streaming the log into submaps and landmarks a few
-submaps at a time (memory bounded by the submaps in flight)."""
+submaps at a time (memory bounded by the submaps in flight). Given a spill
+(:class:`decod_rs._core.Spill`), each submap's landmarks go there as they come, their cells
+read back when the matcher prepares them and when the survey is written: a few hundred bytes
+a landmark stay in memory instead of about 29 KB (``docs/measurements.md``, "Long logs")."""
 
 from __future__ import annotations
 
@@ -72,6 +75,8 @@ class Extracted:
     scans: tuple[FloatArray, FloatArray]
     gap_factors: FloatArray | None = None
     imu_topic: str | None = None
+    #: Where the landmarks' cells wait (None: in memory); the rebuilt rounds' go there too.
+    spill: _core.Spill | None = None
 
 
 def restitched(
@@ -107,6 +112,7 @@ def restitched(
             progress,
             imu_samples=imu,
             label=label,
+            spill=extraction.spill,
         )
     anchors = np.asarray(ex.anchor_stamps, dtype=np.float64)
     ex.anchor_poses = list(interpolate_poses(stamps, odometry, anchors)) if anchors.size else []
@@ -151,8 +157,10 @@ def extract(
     keep_map: bool = False,
     imu_samples: FloatArray | None = None,
     label: str = "extract",
+    spill: _core.Spill | None = None,
 ) -> tuple[_core.LogProcessor, SubmapLandmarks]:
-    """The log streamed into submaps and landmarks (``label``: the progress bar's name)."""
+    """The log streamed into submaps and landmarks (``label``: the progress bar's name;
+    ``spill``: where the landmarks' cells go as they come, module docs)."""
     processor = _core.LogProcessor(
         str(log),
         json.dumps(cfg.to_dict()),
@@ -170,7 +178,8 @@ def extract(
         for submap in batch:
             out.anchor_stamps.append(submap.anchor_stamp)
             out.anchor_poses.append(submap.world_from_anchor)
-            out.landmarks.extend(submap.result.landmarks)
+            found = submap.result.landmarks
+            out.landmarks.extend(found if spill is None or not found else spill.put(found))
             diag = submap.result.diagnostics
             out.end_face_submaps += int(diag.end_face)
             if diag.face_point is not None and diag.face_normal is not None:
@@ -206,13 +215,16 @@ def extract_stage(
     progress: bool,
     keep_map: bool,
     imu_samples: FloatArray | None,
+    spill: _core.Spill | None = None,
 ) -> tuple[Extracted, dict[str, Any]]:
     """Stage 1 on a configured run: the log streamed into submaps and landmarks; the
     stream's damage, gaps and clouds left without odometry at either end warned about once
     (the run goes on with what the log holds); and ``report.json``'s ``ingest`` section;
     ``ValueError`` naming the log when no scan pairs with odometry. ``keep_map``: keep the
-    voxel map (2-12 % of the stream's time)."""
-    processor, ex = extract(log, cfg, *topics, progress, keep_map=keep_map, imu_samples=imu_samples)
+    voxel map (2-12 % of the stream's time); ``spill``: where the landmarks' cells wait."""
+    processor, ex = extract(
+        log, cfg, *topics, progress, keep_map=keep_map, imu_samples=imu_samples, spill=spill
+    )
     scans = scan_odometry(processor)
     health = StreamHealth.from_core(processor.health(), processor.skipped_outside_odometry)
     gap_periods = float(cfg.submap.odometry_gap_periods)
@@ -225,7 +237,7 @@ def extract_stage(
     )
     smooth = smoothing(*scans, cfg)
     ingest["odometry_jitter"] = smooth.report()
-    extraction = Extracted(log, processor, ex, scans, gap_factors, topics[3])
+    extraction = Extracted(log, processor, ex, scans, gap_factors, topics[3], spill)
     if smooth.applied:  # the run's odometry is the fit: the submaps again, stitched on it
         scans = (scans[0], smooth.fitted(*scans))
         extraction = replace(extraction, scans=scans)
