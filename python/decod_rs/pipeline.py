@@ -209,6 +209,8 @@ def finish_run(
         summary, extraction.log, ex, processor, cfg, matched, constraints, correction, seq, joints
     )
     report.update(loops_enabled=loops, rebuild=None if rebuild is None else rebuild_report(rebuild))
+    spill = extraction.spill  # what waited on disk instead of memory (None: nothing did)
+    report["landmarks_on_disk_bytes"] = None if spill is None else spill.bytes
     report["unmeasured"] = unmeasured_report(*odometry_only)
     report["cross_axis"] = None if solved.cross is None else solved.cross.report()
     report["survey"] = None if stage is None else {**stage.report(), "changes": changes}
