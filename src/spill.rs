@@ -18,7 +18,6 @@
 //! run ends; elsewhere it is removed when the [`Spill`] is dropped.
 
 use std::fs::{File, OpenOptions};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -100,12 +99,10 @@ impl Spill {
             .lock()
             .map_err(|_| err(&self.path, "a writer panicked"))?;
         let at = *end;
-        (&self.file)
-            .write_all(&record)
-            .map_err(|source| DecodError::Io {
-                path: self.path.clone(),
-                source,
-            })?;
+        write_all_at(&self.file, &record, at).map_err(|source| DecodError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
         *end += record.len() as u64;
         Ok(Held::Disk(Arc::new(OnDisk {
             head: landmark.head(),
@@ -143,9 +140,30 @@ impl Drop for Spill {
     }
 }
 
+// Positioned reads and writes: neither moves a cursor another thread relies on.
 #[cfg(unix)]
 fn read_exact_at(file: &File, buf: &mut [u8], at: u64) -> std::io::Result<()> {
     std::os::unix::fs::FileExt::read_exact_at(file, buf, at)
+}
+
+#[cfg(unix)]
+fn write_all_at(file: &File, buf: &[u8], at: u64) -> std::io::Result<()> {
+    std::os::unix::fs::FileExt::write_all_at(file, buf, at)
+}
+
+#[cfg(windows)]
+fn write_all_at(file: &File, mut buf: &[u8], mut at: u64) -> std::io::Result<()> {
+    use std::os::windows::fs::FileExt;
+    while !buf.is_empty() {
+        match file.seek_write(buf, at)? {
+            0 => return Err(std::io::ErrorKind::WriteZero.into()),
+            n => {
+                buf = &buf[n..];
+                at += n as u64;
+            }
+        }
+    }
+    Ok(())
 }
 
 #[cfg(windows)]

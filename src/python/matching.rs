@@ -396,8 +396,8 @@ impl PyLandmarkDatabase {
         boundaries: Vec<u64>,
     ) -> PyResult<Vec<usize>> {
         let ls: Vec<Landmark> = landmarks_of(&landmarks)?
-            .iter()
-            .map(|l| (**l).clone())
+            .into_iter()
+            .map(Arc::unwrap_or_clone)
             .collect();
         let db = &mut self.inner;
         detached(py, move || db.extend_views(ls, boundaries))
@@ -486,8 +486,8 @@ impl PyLandmarkDatabase {
         landmarks: Vec<PyRef<'_, PyLandmark>>,
     ) -> PyResult<Vec<usize>> {
         let ls: Vec<Landmark> = landmarks_of(&landmarks)?
-            .iter()
-            .map(|l| (**l).clone())
+            .into_iter()
+            .map(Arc::unwrap_or_clone)
             .collect();
         let db = &mut self.inner;
         detached(py, move || db.extend(ls))
@@ -523,8 +523,8 @@ impl PyLandmarkDatabase {
     ) -> PyResult<Vec<PyQueryResult>> {
         let cfg = config_from_json(config_json)?;
         let qs: Vec<Landmark> = landmarks_of(&queries)?
-            .iter()
-            .map(|l| (**l).clone())
+            .into_iter()
+            .map(Arc::unwrap_or_clone)
             .collect();
         let db = &self.inner;
         let eligibility = eligibility_of(cross_session, false);
