@@ -22,7 +22,7 @@ from decod_rs.batch.jobs import RunOptions
 from decod_rs.config import Config
 from decod_rs.io import find_imu_topic
 from decod_rs.pipeline import MODES, Extracted, RunSummary, Visuals, finish_run
-from decod_rs.run_files import staged_run_dir
+from decod_rs.run_files import landmark_spill, staged_run_dir
 from decod_rs.stages.axial import stage_one
 from decod_rs.stages.extract import SubmapLandmarks, Topics, configure
 
@@ -68,10 +68,13 @@ def _extraction_sections(cfg: Config) -> dict[str, Any]:
     return {k: v for k, v in cfg.to_dict().items() if k not in REPLAYED_SECTIONS}
 
 
-def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extraction:
+def extract_log(
+    log: Path, options: RunOptions, params: dict[str, Any], beside: Path | None = None
+) -> Extraction:
     """Configure (``auto`` measures the corridor once) and extract ``log`` with ``options``
     and the extraction ``params`` (dotted key -> value) applied, as ``run_log`` would with
-    those parameters in its ``--config``."""
+    those parameters in its ``--config``. ``beside``: a run directory beside which the
+    landmarks' cells wait on disk, as ``run_log``'s do (None: in memory)."""
     if options.preset not in ("auto", "tunnel", "pipe"):
         raise ValueError(f"preset: {options.preset!r} is not one of ('auto', 'tunnel', 'pipe')")
     imu_topic = options.imu_topic
@@ -88,7 +91,8 @@ def extract_log(log: Path, options: RunOptions, params: dict[str, Any]) -> Extra
         return (apply_params(base, params) if params else base), auto, imu
 
     # Stage 1 as run_log's: the odometry checked along the axis too (decod_rs.stages.axial).
-    one = stage_one(log, topics, configured, False, keep_map=options.map)
+    spill = None if beside is None else landmark_spill(beside)
+    one = stage_one(log, topics, configured, False, options.map, spill)
     return Extraction(
         log, options, one.extraction, one.ingest, bases[-1], one.cfg, one.auto, one.timings
     )

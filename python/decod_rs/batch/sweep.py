@@ -127,7 +127,7 @@ def sweep_task(
     t0 = time.perf_counter()
     try:
         result.extractions += 1
-        extracted = extract_log(job.log, job.options, extraction)
+        extracted = extract_log(job.log, job.options, extraction, beside=todo[0][1])
     except Exception as exc:
         result.outcomes.update(_fail_all(job, todo, exc))
         return result
