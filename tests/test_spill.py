@@ -98,10 +98,22 @@ def test_a_directory_that_cannot_hold_the_file_is_named(tmp_path: Path) -> None:
         _core.Spill(missing)
 
 
-def test_a_run_with_its_landmarks_on_disk_writes_the_same_files(tmp_path: Path) -> None:
+class _FullDisk:
+    """A spill on a disk with no room left."""
+
+    bytes = 0
+
+    def put(self, landmarks: list[_core.Landmark]) -> list[_core.Landmark]:
+        raise OSError(28, "No space left on device", "landmarks.spill")
+
+
+def test_a_run_with_its_landmarks_on_disk_writes_the_same_files(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     # A 0.6 m concrete pipe seen by 16 beams whose odometry reports 95 % out and 85 % back:
     # a rebuilt round that stands (its landmarks on disk too, the first round left there).
     # Seed 41 is new to this test.
+    from decod_rs import pipeline
     from decod_rs.pipeline import run_log
     from decod_rs.sim import simulate
 
@@ -135,3 +147,12 @@ def test_a_run_with_its_landmarks_on_disk_writes_the_same_files(tmp_path: Path) 
     for name in (*RUN_FILES, "survey.decod"):
         assert (runs / "disk" / name).read_bytes() == (runs / "memory" / name).read_bytes(), name
     assert _left_in(runs) == ["disk", "memory"]  # no spill file beside the runs
+
+    # A disk that fills up: the run goes on with its landmarks in memory, says so once a
+    # round, and writes the same files.
+    monkeypatch.setattr(pipeline, "landmark_spill", lambda out: _FullDisk())
+    capsys.readouterr()
+    run_log(sim / "log", runs / "full", imu_topic="/imu", progress=False, plots=False)
+    assert "No space left on device" in capsys.readouterr().err
+    for name in (*RUN_FILES, "survey.decod"):
+        assert (runs / "full" / name).read_bytes() == (runs / "memory" / name).read_bytes(), name

@@ -8,6 +8,7 @@ a landmark stay in memory instead of about 29 KB (``docs/measurements.md``, "Lon
 from __future__ import annotations
 
 import json
+import sys
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -179,7 +180,13 @@ def extract(
             out.anchor_stamps.append(submap.anchor_stamp)
             out.anchor_poses.append(submap.world_from_anchor)
             found = submap.result.landmarks
-            out.landmarks.extend(found if spill is None or not found else spill.put(found))
+            if spill is not None and found:
+                try:
+                    found = spill.put(found)
+                except OSError as exc:  # a full disk: the rest stay in memory, as before
+                    print(f"warning: {exc}; the landmarks stay in memory", file=sys.stderr)
+                    spill = None
+            out.landmarks.extend(found)
             diag = submap.result.diagnostics
             out.end_face_submaps += int(diag.end_face)
             if diag.face_point is not None and diag.face_normal is not None:
