@@ -59,7 +59,9 @@ fn bench(c: &mut Criterion) {
     ) else {
         return;
     };
-    let side = QuerySide::new(&q);
+    let Ok(side) = QuerySide::new(&q) else {
+        return;
+    };
     group.bench_function("pair_prepared", |b| {
         b.iter(|| compare_prepared(black_box(&q), &side, black_box(&cand), &cfg, &shape))
     });

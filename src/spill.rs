@@ -41,13 +41,19 @@ pub struct Spill {
     end: Mutex<u64>,
 }
 
-/// Where a landmark's record lies in its [`Spill`], with the landmark's head.
-#[derive(Debug)]
-pub struct OnDisk {
-    head: Landmark,
+/// Where a record lies in its [`Spill`] (the spill lives as long as its records).
+#[derive(Clone, Debug)]
+pub struct Record {
     spill: Arc<Spill>,
     at: u64,
     len: usize,
+}
+
+/// A landmark's record in its [`Spill`], with the landmark's head.
+#[derive(Debug)]
+pub struct OnDisk {
+    head: Landmark,
+    record: Record,
 }
 
 /// A landmark in memory, or its head with its record in a [`Spill`] (module docs).
@@ -92,39 +98,59 @@ impl Spill {
     /// [`Held::Disk`].
     pub fn put(self: &Arc<Self>, landmark: &Landmark) -> Result<Held> {
         landmark.validate()?;
-        let mut record = Vec::new();
-        encode_landmark(&mut record, landmark, &self.path)?;
+        let mut bytes = Vec::new();
+        encode_landmark(&mut bytes, landmark, &self.path)?;
+        Ok(Held::Disk(Arc::new(OnDisk {
+            head: landmark.head(),
+            record: self.append(&bytes)?,
+        })))
+    }
+
+    /// Writes `bytes` at the end of the file.
+    pub(crate) fn append(self: &Arc<Self>, bytes: &[u8]) -> Result<Record> {
         let mut end = self
             .end
             .lock()
             .map_err(|_| err(&self.path, "a writer panicked"))?;
         let at = *end;
-        write_all_at(&self.file, &record, at).map_err(|source| DecodError::Io {
+        write_all_at(&self.file, bytes, at).map_err(|source| DecodError::Io {
             path: self.path.clone(),
             source,
         })?;
-        *end += record.len() as u64;
-        Ok(Held::Disk(Arc::new(OnDisk {
-            head: landmark.head(),
+        *end += bytes.len() as u64;
+        Ok(Record {
             spill: Arc::clone(self),
             at,
-            len: record.len(),
-        })))
+            len: bytes.len(),
+        })
     }
+}
 
-    /// The record of `len` bytes at `at`, read and validated.
-    fn read(&self, at: u64, len: usize) -> Result<Landmark> {
-        let mut buf = vec![0u8; len];
-        read_exact_at(&self.file, &mut buf, at).map_err(|source| DecodError::Io {
-            path: self.path.clone(),
+impl Record {
+    /// The record's bytes, read back.
+    pub(crate) fn bytes(&self) -> Result<Vec<u8>> {
+        let mut buf = vec![0u8; self.len];
+        read_exact_at(&self.spill.file, &mut buf, self.at).map_err(|source| DecodError::Io {
+            path: self.spill.path.clone(),
             source,
         })?;
-        let mut r = Reader::new(&buf, &self.path);
+        Ok(buf)
+    }
+
+    /// The file it lies in (named in errors).
+    pub(crate) fn path(&self) -> &Path {
+        &self.spill.path
+    }
+
+    /// The landmark the record holds, read and validated.
+    fn landmark(&self) -> Result<Landmark> {
+        let buf = self.bytes()?;
+        let mut r = Reader::new(&buf, self.path());
         let landmark = r.landmark()?;
         if r.left() != 0 {
             return Err(err(
-                &self.path,
-                format!("{} bytes beyond the record at {at}", r.left()),
+                self.path(),
+                format!("{} bytes beyond the record at {}", r.left(), self.at),
             ));
         }
         landmark.validate()?;
@@ -195,7 +221,7 @@ impl Held {
     pub fn landmark(&self) -> Result<Arc<Landmark>> {
         match self {
             Self::Memory(l) => Ok(Arc::clone(l)),
-            Self::Disk(d) => d.spill.read(d.at, d.len).map(Arc::new),
+            Self::Disk(d) => d.record.landmark().map(Arc::new),
         }
     }
 

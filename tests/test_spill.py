@@ -55,7 +55,8 @@ def test_landmarks_on_disk_are_the_same_landmarks_and_leave_no_file(tmp_path: Pa
 
 def test_matching_on_disk_gives_the_same_results(tmp_path: Path) -> None:
     held = _landmarks()
-    on_disk = _core.Spill(tmp_path).put(held)
+    spill = _core.Spill(tmp_path)
+    on_disk = spill.put(held)
     config = matching_config_json(load_config().matching)
     pairs = [(i, j) for i in range(len(held)) for j in range(len(held)) if i != j]
     fields = ("inliers", "matches", "score", "dz_m", "dp", "heading_deg", "rejection")
@@ -68,9 +69,20 @@ def test_matching_on_disk_gives_the_same_results(tmp_path: Path) -> None:
     views = _core.PreparedViews(on_disk, config)
     assert summary(views.compare_pairs(pairs, False)) == expected
     assert max(r.inliers for r in views.compare_pairs(pairs, False)) >= 9  # views of a joint
+    # The views' patches on disk too, read back by each comparison.
+    size = spill.bytes
+    set_aside = _core.PreparedViews(on_disk, config, spill)
+    assert spill.bytes > size + len(held) * 16 * 256 * 4
+    assert summary(set_aside.compare_pairs(pairs, False)) == expected
 
-    db = _core.LandmarkDatabase(config)
-    db.extend_prepared(views, [0, 2, 4], [0, 1, 2])
+    queries = [1, 3, 5]
+    results = []
+    for v in (views, set_aside):
+        db = _core.LandmarkDatabase(config)
+        db.extend_prepared(v, [0, 2, 4], [0, 1, 2])
+        got = db.query_batch_prepared(v, queries, False)
+        results.append([(r.accepted, r.candidate_index, r.chance) for r in got])
+    assert results[0] == results[1] and any(a for a, _, _ in results[0])
     stored = db.landmark(1)
     assert stored.on_disk and stored.to_json() == held[2].to_json()
 

@@ -311,7 +311,9 @@ class QueryResult:
 
 @final
 class PreparedViews:
-    def __new__(cls, landmarks: list[Landmark], config_json: str) -> PreparedViews: ...
+    def __new__(
+        cls, landmarks: list[Landmark], config_json: str, spill: Spill | None = None
+    ) -> PreparedViews: ...
     def __len__(self) -> int: ...
     def compare_pairs(
         self, pairs: list[tuple[int, int]], same_heading: bool = False

@@ -104,9 +104,15 @@ class PairMemo:
     tracks with the matcher, then builds the sequential factors from the same pairs in every
     optimisation round."""
 
-    def __init__(self, landmarks: Sequence[Landmark], config: MatchingConfigLike = None) -> None:
+    def __init__(
+        self,
+        landmarks: Sequence[Landmark],
+        config: MatchingConfigLike = None,
+        spill: _core.Spill | None = None,
+    ) -> None:
         self._landmarks = list(landmarks)
         self._config = matching_config_json(config)
+        self._spill = spill
         self._views: _core.PreparedViews | None = None
         self._released = False
         self._done: dict[tuple[int, int], PairResult] = {}
@@ -121,9 +127,10 @@ class PairMemo:
     def views(self) -> _core.PreparedViews:
         """Every landmark prepared for the matcher once (on first use): the comparisons
         here and the run's database and queries (:meth:`LandmarkDatabase.extend_prepared`)
-        share them until :meth:`release_views`."""
+        share them until :meth:`release_views`. Given a spill, each view's patches (about
+        17 KB of its 25) wait there and every comparison reads back what it needs."""
         if self._views is None:
-            self._views = _core.PreparedViews(self._landmarks, self._config)
+            self._views = _core.PreparedViews(self._landmarks, self._config, self._spill)
         return self._views
 
     def release_views(self) -> None:

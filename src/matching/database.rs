@@ -544,11 +544,11 @@ impl LandmarkDatabase {
         for pair in queries.windows(2) {
             check_grids(&pair[0].head, &pair[1].head)?;
         }
-        Ok(queries
+        queries
             .par_iter()
             .enumerate()
             .map(|(k, q)| self.query_prepared(q, &self.entries, &self.shape, cfg, context(k)))
-            .collect())
+            .collect()
     }
 
     /// Online mode: query against every landmark already in the database (all older ones),
@@ -696,7 +696,7 @@ impl LandmarkDatabase {
                 (&reprepared, shape)
             };
         let q = PreparedLandmark::new_query(Arc::new(query.clone()), cfg, &shape)?;
-        Ok(self.query_prepared(&q, entries, &shape, cfg, ctx))
+        self.query_prepared(&q, entries, &shape, cfg, ctx)
     }
 
     /// The query, prepared like `entries` (with all its coarse signatures), against them.
@@ -707,32 +707,30 @@ impl LandmarkDatabase {
         shape: &PatchShape,
         cfg: &MatchingConfig,
         ctx: QueryContext,
-    ) -> QueryResult {
+    ) -> Result<QueryResult> {
         let QueryContext {
             direction,
             parallel,
             eligibility,
         } = ctx;
-        let side = QuerySide::new(q);
+        let side = QuerySide::new(q)?;
         let (compared, eligible) = self.candidates(q, entries, cfg, parallel, eligibility);
         let headings = |index: usize| match (direction, self.directions.get(index)) {
             (Some(d), Some(e)) if cfg.heading_from_odometry => heading::prior(&d, e),
             _ => &Heading::BOTH,
         };
         let work = |&index: &usize| {
-            (
-                index,
-                compare_prepared_in(q, &side, &entries[index], headings(index), cfg, shape),
-            )
+            compare_prepared_in(q, &side, &entries[index], headings(index), cfg, shape)
+                .map(|pair| (index, pair))
         };
-        let run = |indices: &[usize]| -> Vec<(usize, PairResult)> {
+        let run = |indices: &[usize]| -> Result<Vec<(usize, PairResult)>> {
             if parallel {
                 indices.par_iter().map(work).collect()
             } else {
                 indices.iter().map(work).collect()
             }
         };
-        let mut pairs = run(&compared);
+        let mut pairs = run(&compared)?;
         if compared.len() < eligible.len() {
             // A short list: widen it around the best until the best stays (a neighbour may
             // beat it, and then its own neighbours are the competitors).
@@ -746,7 +744,7 @@ impl LandmarkDatabase {
                 widened_around.push(best);
                 let extra = self.neighbours_of(best, &eligible, &seen, cfg);
                 extra.iter().for_each(|&i| seen[i] = true);
-                pairs.extend(run(&extra));
+                pairs.extend(run(&extra)?);
             }
         }
         let family = if eligible.len() == self.boundaries.len() {
@@ -760,7 +758,7 @@ impl LandmarkDatabase {
         if eligible.is_empty() && !entries.is_empty() {
             result.rejection = Some(Rejection::Ineligible);
         }
-        result
+        Ok(result)
     }
 }
 

@@ -34,7 +34,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::MatchingConfig;
 use crate::error::{DecodError, Result};
 use crate::landmark::Landmark;
-use crate::spill::Held;
+use crate::spill::{Held, Record, Spill};
 
 pub use database::{LandmarkDatabase, QueryResult};
 pub use heading::Heading;
@@ -128,14 +128,23 @@ pub struct PreparedLandmark {
     flipped_bits: Vec<u64>,
     /// Keypoints (heading 0), strongest first.
     pub keypoints: Vec<Keypoint>,
-    /// The keypoints' patches (compact; the GEMM factor is built from them per comparison).
-    pub patches: CandidatePatches,
+    /// The keypoints' patches (compact; the GEMM factor is built from them per comparison),
+    /// in memory or set aside on disk ([`Self::set_aside`]).
+    patches: Patches,
     /// Coarse signatures: for a query ([`Self::new_query`]) both headings at a few axial
     /// shifts ([`retrieval::query_signatures`]); for a database entry the first of those only
     /// (forward, unshifted), what the entry is indexed by.
     pub coarse: Vec<Vec<f32>>,
     /// Earliest and latest scan stamp of the submap (eligibility's fast path).
     scan_span: (f64, f64),
+}
+
+/// A view's patches: in memory, or on disk while a run's passes are matched ([`crate::spill`]),
+/// read back by each comparison that needs them.
+#[derive(Clone, Debug)]
+enum Patches {
+    Memory(Arc<CandidatePatches>),
+    Disk(Record),
 }
 
 fn bitset(bits: impl Iterator<Item = bool>) -> Vec<u64> {
@@ -234,10 +243,30 @@ impl PreparedLandmark {
             observed_bits: bitset(observed.iter().copied()),
             flipped_bits: bitset(observed.iter().rev().copied()),
             keypoints,
-            patches,
+            patches: Patches::Memory(Arc::new(patches)),
             head: Arc::new(landmark.head()),
             source,
         })
+    }
+
+    /// The keypoints' patches, read back where they are on disk.
+    pub fn patches(&self) -> Result<Arc<CandidatePatches>> {
+        match &self.patches {
+            Patches::Memory(p) => Ok(Arc::clone(p)),
+            Patches::Disk(r) => CandidatePatches::decode(&r.bytes()?, r.path()).map(Arc::new),
+        }
+    }
+
+    /// Moves the patches (the compared field and the keypoints' centres, about 17 KB of a
+    /// view's 25) into `spill`: each comparison then reads them back (about 17 KB against a
+    /// pair's 0.2 ms of products), and memory holds the rest of the view.
+    pub fn set_aside(&mut self, spill: &Arc<Spill>) -> Result<()> {
+        if let Patches::Memory(p) = &self.patches {
+            let mut bytes = Vec::with_capacity(p.heap_bytes() + 64);
+            p.encode(&mut bytes);
+            self.patches = Patches::Disk(spill.append(&bytes)?);
+        }
+        Ok(())
     }
 
     /// Grid size `(rows, cols)`.
@@ -267,7 +296,10 @@ impl PreparedLandmark {
                 Held::Memory(l) => bytes(l),
                 Held::Disk(_) => 0,
             };
-        let patches = self.patches.heap_bytes();
+        let patches = match &self.patches {
+            Patches::Memory(p) => p.heap_bytes(),
+            Patches::Disk(_) => 0,
+        };
         let bits = 8 * (self.observed_bits.len() + self.flipped_bits.len());
         let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
         let coarse = 4 * self.coarse.iter().map(Vec::len).sum::<usize>();
@@ -282,22 +314,25 @@ impl PreparedLandmark {
 pub struct QuerySide {
     sides: [OnceLock<QueryPatches>; 2],
     flipped_bits: Vec<u64>,
+    /// The query's patches (read back once where they are on disk).
+    patches: Arc<CandidatePatches>,
 }
 
 impl QuerySide {
     /// The query side of `p` (its factors are built by the comparisons that need them).
-    pub fn new(p: &PreparedLandmark) -> Self {
-        Self {
+    pub fn new(p: &PreparedLandmark) -> Result<Self> {
+        Ok(Self {
             sides: [OnceLock::new(), OnceLock::new()],
             flipped_bits: p.flipped_bits.clone(),
-        }
+            patches: p.patches()?,
+        })
     }
 
-    /// The query factors of `p` (the landmark this side was built from) under `heading`.
-    fn patches(&self, p: &PreparedLandmark, shape: &PatchShape, heading: Heading) -> &QueryPatches {
+    /// The query factors under `heading`.
+    fn patches(&self, shape: &PatchShape, heading: Heading) -> &QueryPatches {
         let flipped = heading == Heading::Reversed;
         self.sides[usize::from(flipped)]
-            .get_or_init(|| QueryPatches::from_candidate(shape, &p.patches, flipped))
+            .get_or_init(|| QueryPatches::from_candidate(shape, &self.patches, flipped))
     }
 }
 
@@ -322,7 +357,7 @@ pub fn compare(query: &Landmark, candidate: &Landmark, cfg: &MatchingConfig) -> 
     let shape = PatchShape::new(cfg);
     let q = PreparedLandmark::new(Arc::new(query.clone()), cfg, &shape)?;
     let c = PreparedLandmark::new(Arc::new(candidate.clone()), cfg, &shape)?;
-    Ok(compare_with_chance(&q, &c, cfg, &shape))
+    compare_with_chance(&q, &c, cfg, &shape)
 }
 
 /// Many comparisons among `landmarks` at once: `pairs` of (query, candidate) indices, each
@@ -361,13 +396,7 @@ pub fn compare_pairs(
         })
         .collect::<Result<Vec<_>>>()?;
     let get = |i: usize| prepared.get(i).and_then(Option::as_ref);
-    Ok(compare_prepared_pairs(
-        get,
-        pairs,
-        cfg,
-        &shape,
-        same_heading,
-    ))
+    compare_prepared_pairs(get, pairs, cfg, &shape, same_heading)
 }
 
 /// Every landmark of a run prepared once, as a query (all coarse signatures), in parallel:
@@ -376,10 +405,12 @@ pub fn compare_pairs(
 /// ([`LandmarkDatabase::query_batch_prepared`]) then share them (beyond the paper: each
 /// landmark was prepared twice per round, ~0.1 s of a 64-beam round). The landmarks must
 /// share one grid; those on disk ([`crate::spill`]) are read back one at a time, and their
-/// views keep what they compare, not the cells.
+/// views keep what they compare, not the cells. With `spill`, each view's patches go there
+/// as soon as it is prepared ([`PreparedLandmark::set_aside`]).
 pub fn prepare_views(
     landmarks: &[Held],
     cfg: &MatchingConfig,
+    spill: Option<&Arc<Spill>>,
 ) -> Result<Vec<Arc<PreparedLandmark>>> {
     use rayon::prelude::*;
     for pair in landmarks.windows(2) {
@@ -388,7 +419,13 @@ pub fn prepare_views(
     let shape = PatchShape::new(cfg);
     landmarks
         .par_iter()
-        .map(|l| PreparedLandmark::new_query(l.clone(), cfg, &shape).map(Arc::new))
+        .map(|l| {
+            let mut view = PreparedLandmark::new_query(l.clone(), cfg, &shape)?;
+            if let Some(spill) = spill {
+                view.set_aside(spill)?;
+            }
+            Ok(Arc::new(view))
+        })
         .collect()
 }
 
@@ -401,13 +438,13 @@ pub fn compare_view_pairs(
 ) -> Result<Vec<PairResult>> {
     check_pair_indices(pairs, views.len())?;
     let shape = PatchShape::new(cfg);
-    Ok(compare_prepared_pairs(
+    compare_prepared_pairs(
         |i| views.get(i).map(|v| &**v),
         pairs,
         cfg,
         &shape,
         same_heading,
-    ))
+    )
 }
 
 /// An error naming the first pair with an index beyond `n` landmarks.
@@ -430,7 +467,7 @@ fn compare_prepared_pairs<'a>(
     cfg: &MatchingConfig,
     shape: &PatchShape,
     same_heading: bool,
-) -> Vec<PairResult> {
+) -> Result<Vec<PairResult>> {
     use rayon::prelude::*;
     let n = pairs.iter().map(|&(i, _)| i + 1).max().unwrap_or(0);
     let mut by_query: Vec<Vec<usize>> = vec![Vec::new(); n];
@@ -443,13 +480,13 @@ fn compare_prepared_pairs<'a>(
         .filter(|(_, ks)| !ks.is_empty())
         .map(|(i, ks)| {
             let Some(q) = get(i) else {
-                return Vec::new();
+                return Ok(Vec::new());
             };
-            let side = QuerySide::new(q);
+            let side = QuerySide::new(q)?;
             ks.iter()
                 .filter_map(|&k| {
                     let c = get(pairs[k].1)?;
-                    let mut pair = if same_heading {
+                    let pair = if same_heading {
                         compare_heading(
                             q,
                             &side,
@@ -460,19 +497,21 @@ fn compare_prepared_pairs<'a>(
                     } else {
                         compare_prepared(q, &side, c, cfg, shape)
                     };
-                    if cfg.verification {
-                        pair.chance = pair_chance(q, c, &pair, cfg);
-                    }
-                    Some((k, pair))
+                    Some(pair.map(|mut pair| {
+                        if cfg.verification {
+                            pair.chance = pair_chance(q, c, &pair, cfg);
+                        }
+                        (k, pair)
+                    }))
                 })
                 .collect()
         })
-        .collect();
+        .collect::<Result<_>>()?;
     let mut out: Vec<Option<PairResult>> = vec![None; pairs.len()];
     for (k, pair) in found.into_iter().flatten() {
         out[k] = Some(pair);
     }
-    out.into_iter().flatten().collect()
+    Ok(out.into_iter().flatten().collect())
 }
 
 /// [`compare_prepared`] plus the pair's null-model chance.
@@ -481,13 +520,13 @@ fn compare_with_chance(
     c: &PreparedLandmark,
     cfg: &MatchingConfig,
     shape: &PatchShape,
-) -> PairResult {
-    let side = QuerySide::new(q);
-    let mut pair = compare_prepared(q, &side, c, cfg, shape);
+) -> Result<PairResult> {
+    let side = QuerySide::new(q)?;
+    let mut pair = compare_prepared(q, &side, c, cfg, shape)?;
     if cfg.verification {
         pair.chance = pair_chance(q, c, &pair, cfg);
     }
-    pair
+    Ok(pair)
 }
 
 /// The null model's chance for `pair` of prepared landmarks ([`null_model::pair_p_value`]).
@@ -515,7 +554,7 @@ pub fn compare_prepared(
     c: &PreparedLandmark,
     cfg: &MatchingConfig,
     shape: &PatchShape,
-) -> PairResult {
+) -> Result<PairResult> {
     compare_prepared_in(q, side, c, &Heading::BOTH, cfg, shape)
 }
 
@@ -528,12 +567,13 @@ pub fn compare_prepared_in(
     headings: &[Heading],
     cfg: &MatchingConfig,
     shape: &PatchShape,
-) -> PairResult {
+) -> Result<PairResult> {
     let factor = CandidateFactor::new(c, shape);
     if let [only] = headings {
         return compare_heading(q, side, &factor, *only, cfg);
     }
-    let [forward, reversed] = Heading::BOTH.map(|h| compare_heading(q, side, &factor, h, cfg));
+    let forward = compare_heading(q, side, &factor, Heading::Forward, cfg)?;
+    let reversed = compare_heading(q, side, &factor, Heading::Reversed, cfg)?;
     let key = |r: &PairResult| {
         (
             r.rejection != Some(Rejection::InsufficientOverlap),
@@ -545,7 +585,7 @@ pub fn compare_prepared_in(
         || (forward.rejection == Some(Rejection::InsufficientOverlap)
             && reversed.rejection == Some(Rejection::InsufficientOverlap)
             && reversed.overlap_fraction > forward.overlap_fraction);
-    if better_reversed { reversed } else { forward }
+    Ok(if better_reversed { reversed } else { forward })
 }
 
 /// One heading. Overlap (the paper is silent on its threshold): mutually observed cells over
@@ -558,7 +598,7 @@ fn compare_heading(
     factor: &CandidateFactor<'_>,
     heading: Heading,
     cfg: &MatchingConfig,
-) -> PairResult {
+) -> Result<PairResult> {
     let (c, shape) = (factor.landmark, factor.shape);
     let (rows, cols) = q.grid();
     let q_bits = match heading {
@@ -587,10 +627,10 @@ fn compare_heading(
     };
     if overlap_fraction < cfg.min_overlap_fraction {
         result.rejection = Some(Rejection::InsufficientOverlap);
-        return result;
+        return Ok(result);
     }
-    let qp = side.patches(q, shape, heading);
-    let dist = patch_distances::distances(shape, qp, factor.get(), cfg.min_patch_overlap_fraction);
+    let qp = side.patches(shape, heading);
+    let dist = patch_distances::distances(shape, qp, factor.get()?, cfg.min_patch_overlap_fraction);
     let matches = keypoint_correspondences(q, c, &dist, heading);
     let consensus = if cfg.verification {
         verify::consensus(&matches, cols, cfg)
@@ -616,7 +656,7 @@ fn compare_heading(
     if cfg.verification && consensus.inliers < pair_floor(cfg) {
         result.rejection = Some(Rejection::TooFewInliers);
     }
-    result
+    Ok(result)
 }
 
 thread_local! {
@@ -643,12 +683,16 @@ impl<'a> CandidateFactor<'a> {
         }
     }
 
-    fn get(&self) -> &PatchFactor {
-        self.buffer.get_or_init(|| {
+    fn get(&self) -> Result<&PatchFactor> {
+        if let Some(factor) = self.buffer.get() {
+            return Ok(factor);
+        }
+        let patches = self.landmark.patches()?;
+        Ok(self.buffer.get_or_init(|| {
             let mut buf = FACTOR_BUFFER.take().unwrap_or_default();
-            buf.fill(self.shape, &self.landmark.patches);
+            buf.fill(self.shape, &patches);
             buf
-        })
+        }))
     }
 }
 

@@ -16,7 +16,11 @@
 //! stores one set of patches per landmark.
 
 use super::keypoints::Keypoint;
+use std::path::Path;
+
 use crate::config::MatchingConfig;
+use crate::error::Result;
+use crate::survey::{Reader, err};
 
 /// Patch geometry shared by every landmark of one config.
 #[derive(Clone, Debug, PartialEq)]
@@ -286,6 +290,81 @@ impl CandidatePatches {
     /// Heap bytes held (the field and the centres).
     pub fn heap_bytes(&self) -> usize {
         4 * self.field.len() + self.centres.len() * std::mem::size_of::<PatchCentre>()
+    }
+
+    /// The patches as bytes, exactly (little-endian: rows, cols and the keypoint count as
+    /// u32, the field's f32, then each centre's row and column as u32, mean and scale as f64
+    /// and the banded flag as a byte): what a view keeps on disk ([`crate::spill`]).
+    pub(crate) fn encode(&self, out: &mut Vec<u8>) {
+        let (rows, cols) = self.grid;
+        for n in [rows, cols, self.centres.len()] {
+            out.extend_from_slice(&(n as u32).to_le_bytes());
+        }
+        for v in &self.field {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        for c in &self.centres {
+            out.extend_from_slice(&c.row.to_le_bytes());
+            out.extend_from_slice(&c.col.to_le_bytes());
+            out.extend_from_slice(&c.mean.to_le_bytes());
+            out.extend_from_slice(&c.scale.to_le_bytes());
+            out.push(u8::from(c.banded));
+        }
+    }
+
+    /// The patches [`Self::encode`] wrote into `bytes`; a record of other sizes is an error
+    /// naming `path`, refused before anything is allocated for it.
+    pub(crate) fn decode(bytes: &[u8], path: &Path) -> Result<Self> {
+        const CENTRE: usize = 4 + 4 + 8 + 8 + 1;
+        let mut r = Reader::new(bytes, path);
+        let (rows, cols, count) = (r.u32()? as usize, r.u32()? as usize, r.u32()? as usize);
+        let cells = rows.saturating_mul(cols);
+        if cells
+            .saturating_mul(4)
+            .saturating_add(count.saturating_mul(CENTRE))
+            != r.left()
+        {
+            return Err(err(
+                path,
+                format!(
+                    "a view's record of {} bytes for {rows} x {cols} and {count} keypoints",
+                    bytes.len()
+                ),
+            ));
+        }
+        let f32_at = |b: &[u8]| f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        let field = r.take(4 * cells)?.chunks_exact(4).map(f32_at).collect();
+        let centres = r
+            .take(count * CENTRE)?
+            .chunks_exact(CENTRE)
+            .map(|c| {
+                let u = |i: usize| u32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+                let f = |i: usize| {
+                    f64::from_le_bytes([
+                        c[i],
+                        c[i + 1],
+                        c[i + 2],
+                        c[i + 3],
+                        c[i + 4],
+                        c[i + 5],
+                        c[i + 6],
+                        c[i + 7],
+                    ])
+                };
+                PatchCentre {
+                    row: u(0),
+                    col: u(4),
+                    mean: f(8),
+                    scale: f(16),
+                    banded: c[24] != 0,
+                }
+            })
+            .collect();
+        Ok(Self {
+            field,
+            grid: (rows, cols),
+            centres,
+        })
     }
 
     /// Keypoint `j`'s z-scored patch in `out` (`P` values, flat row-major; NaN where the cell

@@ -960,9 +960,10 @@ fn views_prepared_once_compare_and_query_like_fresh_ones() {
         .iter()
         .map(|h| spill.put(&h.landmark().unwrap()).unwrap())
         .collect();
-    let views = prepare_views(&on_disk, &c).unwrap();
-    let in_memory = prepare_views(&all[..1], &c).unwrap();
-    assert!(views[0].heap_bytes() + 20_000 < in_memory[0].heap_bytes());
+    // Their patches wait there too, read back by each comparison.
+    let views = prepare_views(&on_disk, &c, Some(&spill)).unwrap();
+    let in_memory = prepare_views(&all[..1], &c, None).unwrap();
+    assert!(views[0].heap_bytes() + 35_000 < in_memory[0].heap_bytes());
     let pairs: Vec<(usize, usize)> = (0..all.len() - 1)
         .map(|i| (i, (i * 7 + 3) % all.len()))
         .collect();
@@ -1060,4 +1061,30 @@ fn heading_prior_compares_only_the_heading_the_odometry_allows() {
         .query_batch_prepared(&[&q], Some(&[]), &c, database::Eligibility::WithinRun)
         .unwrap_err();
     assert!(err.to_string().contains("1 queries"), "{err}");
+}
+
+#[test]
+fn a_views_patches_come_back_exactly_and_a_record_of_other_sizes_is_refused() {
+    let c = cfg();
+    let (landmarks, _) = retrieval_set(Grid::tunnel(), 1, 0, 3);
+    let view = PreparedLandmark::new(landmarks[0].clone(), &c, &PatchShape::new(&c)).unwrap();
+    let patches = view.patches().unwrap();
+    let mut bytes = Vec::new();
+    patches.encode(&mut bytes);
+    let path = std::path::Path::new("views.spill");
+    let back = patches::CandidatePatches::decode(&bytes, path).unwrap();
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    patches.encode(&mut a);
+    back.encode(&mut b);
+    assert_eq!(a, b);
+    assert!(patches.count() > 0);
+    for cut in [bytes.len() - 1, 11, 0] {
+        match patches::CandidatePatches::decode(&bytes[..cut], path) {
+            Err(DecodError::Database { path, .. }) => assert!(path.ends_with("views.spill")),
+            other => panic!("expected a refusal naming the file, got {other:?}"),
+        }
+    }
+    let mut longer = bytes.clone();
+    longer.push(0);
+    assert!(patches::CandidatePatches::decode(&longer, path).is_err());
 }

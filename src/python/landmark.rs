@@ -57,7 +57,7 @@ pub(crate) fn held_of(items: &[PyRef<'_, PyLandmark>]) -> Vec<Held> {
 /// landmark put in it.
 #[pyclass(name = "Spill", module = "decod_rs._core", frozen)]
 pub(crate) struct PySpill {
-    inner: Arc<Spill>,
+    pub(crate) inner: Arc<Spill>,
 }
 
 #[pymethods]

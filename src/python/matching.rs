@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 use super::arrays::{flat_to_numpy, points_n3, rows_to_numpy};
 use super::detached;
 use super::errors::to_py_err;
-use super::landmark::{PyLandmark, held_of};
+use super::landmark::{PyLandmark, PySpill, held_of};
 use crate::config::MatchingConfig;
 use crate::error::DecodError;
 use crate::landmark::Landmark;
@@ -306,16 +306,22 @@ pub(crate) struct PyPreparedViews {
 
 #[pymethods]
 impl PyPreparedViews {
+    /// `spill`: where each view's patches wait while the passes are matched (None: memory).
     #[new]
+    #[pyo3(signature = (landmarks, config_json, spill = None))]
     fn py_new(
         py: Python<'_>,
         landmarks: Vec<PyRef<'_, PyLandmark>>,
         config_json: &str,
+        spill: Option<PyRef<'_, PySpill>>,
     ) -> PyResult<Self> {
         let config = config_from_json(config_json)?;
         let ls = held_of(&landmarks);
         let cfg = config.clone();
-        let views = detached(py, move || matching::prepare_views(&ls, &cfg))?;
+        let spill = spill.map(|s| Arc::clone(&s.inner));
+        let views = detached(py, move || {
+            matching::prepare_views(&ls, &cfg, spill.as_ref())
+        })?;
         Ok(Self { views, config })
     }
     fn __len__(&self) -> usize {

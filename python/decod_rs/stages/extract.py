@@ -55,6 +55,9 @@ class SubmapLandmarks:
     #: Where ``landmarks`` wait on disk, the list empty, since a rebuilt round replaced this
     #: one (:mod:`decod_rs.parking`); :meth:`restored` brings them back.
     parked: Parked | None = None
+    #: Where the landmarks' cells wait (module docs), and their views' patches while they are
+    #: matched (:class:`decod_rs.matching.PairMemo`); None: in memory.
+    spill: _core.Spill | None = None
 
     def restored(self) -> SubmapLandmarks:
         """This round with its landmarks in memory: read back if a rebuilt round that
@@ -173,7 +176,7 @@ def extract(
         imu_samples=imu_samples,
     )
     bar = Progress(label, processor.total_scans_hint or None, enabled=progress)
-    out = SubmapLandmarks()
+    out = SubmapLandmarks(spill=spill)
     read = 0
     while (batch := processor.step()) is not None:
         for submap in batch:
@@ -185,7 +188,7 @@ def extract(
                     found = spill.put(found)
                 except OSError as exc:  # a full disk: the rest stay in memory, as before
                     print(f"warning: {exc}; the landmarks stay in memory", file=sys.stderr)
-                    spill = None
+                    spill = out.spill = None
             out.landmarks.extend(found)
             diag = submap.result.diagnostics
             out.end_face_submaps += int(diag.end_face)

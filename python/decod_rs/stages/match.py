@@ -218,7 +218,7 @@ def match_and_select(
         stamps = np.asarray(ex.anchor_stamps, dtype=np.float64)
         poses = interpolate_poses(scan_stamps, link_frame, stamps)
         linking = dict(zip(ex.anchor_stamps, poses, strict=True))
-    pairs = PairMemo(ex.landmarks, m)
+    pairs = PairMemo(ex.landmarks, m, ex.spill)
     tracks = group_views(
         ex.landmarks,
         linking,
