@@ -9,13 +9,16 @@
 //! as they are extracted; a [`Held`] landmark is then its fields without the cells (its
 //! *head*, a few hundred bytes) and where its record lies, read back exactly (the survey's
 //! record, `crate::survey`: the offsets in f32 as a landmark holds them) each time the cells
-//! are asked for, by one positioned read that leaves the file's other readers alone.
+//! are asked for, by one positioned read that leaves the file's other readers alone. The
+//! matcher's views put their patches in the same file while the passes are matched
+//! ([`Record`], `crate::matching::PreparedLandmark::set_aside`).
 //!
 //! **The file** is the run's own and holds no code: a record is written by this process and
-//! read back only by it, its length and place kept in memory, every record validated when it
-//! is read as when it was written. On Unix it is unlinked as soon as it is created, so it
-//! takes no name and goes when the last landmark that points into it does, whatever way the
-//! run ends; elsewhere it is removed when the [`Spill`] is dropped.
+//! read back only by it, its length and place kept in memory, every landmark validated when
+//! it is read as when it was written and a view's patches checked against their sizes. On
+//! Unix it is unlinked as soon as it is created, so it takes no name and goes when the last
+//! landmark or view that points into it does, whatever way the run ends; elsewhere it is
+//! removed when the [`Spill`] is dropped.
 
 use std::fs::{File, OpenOptions};
 use std::path::{Path, PathBuf};
