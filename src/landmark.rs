@@ -139,4 +139,26 @@ impl Landmark {
         }
         Ok(())
     }
+
+    /// The landmark without its cells (the descriptor's offsets, mask and normals, and the
+    /// contour): what a [`crate::spill::Held`] landmark keeps in memory. Not a valid landmark
+    /// ([`Landmark::validate`] refuses it).
+    pub fn head(&self) -> Landmark {
+        let d = &self.descriptor;
+        Landmark {
+            scan_stamps: self.scan_stamps.clone(),
+            contour_e1e2_m: Vec::new(),
+            descriptor: Descriptor {
+                rows: d.rows,
+                cols: d.cols,
+                cell_z_m: d.cell_z_m,
+                perimeter_m: d.perimeter_m,
+                offsets_m: Vec::new(),
+                observed: Vec::new(),
+                normal_e1: Vec::new(),
+                normal_e2: Vec::new(),
+            },
+            ..*self
+        }
+    }
 }

@@ -26,7 +26,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use crate::error::{DecodError, Result};
-use crate::landmark::{Descriptor, Landmark};
+use crate::landmark::Landmark;
 use crate::survey::{Reader, encode_landmark, err};
 
 /// Files created by this process so far (their names must differ).
@@ -55,7 +55,7 @@ pub struct Record {
 /// A landmark's record in its [`Spill`], with the landmark's head.
 #[derive(Debug)]
 pub struct OnDisk {
-    head: Landmark,
+    head: Arc<Landmark>,
     record: Record,
 }
 
@@ -104,7 +104,7 @@ impl Spill {
         let mut bytes = Vec::new();
         encode_landmark(&mut bytes, landmark, &self.path)?;
         Ok(Held::Disk(Arc::new(OnDisk {
-            head: landmark.head(),
+            head: Arc::new(landmark.head()),
             record: self.append(&bytes)?,
         })))
     }
@@ -228,6 +228,15 @@ impl Held {
         }
     }
 
+    /// The landmark's head ([`Landmark::head`]): shared where it is on disk, stripped from
+    /// it where it is in memory.
+    pub fn stripped(&self) -> Arc<Landmark> {
+        match self {
+            Self::Memory(l) => Arc::new(l.head()),
+            Self::Disk(d) => Arc::clone(&d.head),
+        }
+    }
+
     /// Whether the cells are on disk.
     pub fn on_disk(&self) -> bool {
         matches!(self, Self::Disk(_))
@@ -243,30 +252,6 @@ impl From<Arc<Landmark>> for Held {
 impl From<Landmark> for Held {
     fn from(l: Landmark) -> Self {
         Self::Memory(Arc::new(l))
-    }
-}
-
-impl Landmark {
-    /// The landmark without its cells (the descriptor's offsets, mask and normals, and the
-    /// contour): what a [`Held`] landmark keeps in memory. Not a valid landmark
-    /// ([`Landmark::validate`] refuses it).
-    pub fn head(&self) -> Landmark {
-        let d = &self.descriptor;
-        Landmark {
-            scan_stamps: self.scan_stamps.clone(),
-            contour_e1e2_m: Vec::new(),
-            descriptor: Descriptor {
-                rows: d.rows,
-                cols: d.cols,
-                cell_z_m: d.cell_z_m,
-                perimeter_m: d.perimeter_m,
-                offsets_m: Vec::new(),
-                observed: Vec::new(),
-                normal_e1: Vec::new(),
-                normal_e2: Vec::new(),
-            },
-            ..*self
-        }
     }
 }
 

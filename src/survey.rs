@@ -20,7 +20,7 @@
 //! before anything is allocated, so a corrupt or hostile file is an error naming the record,
 //! never an allocation of its claimed size. Landmarks are validated ([`Landmark::validate`]).
 
-use std::borrow::Borrow;
+use std::borrow::{Borrow, Cow};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -141,30 +141,30 @@ pub fn write_survey<L: Source>(path: &Path, header: &Value, landmarks: &[L]) -> 
 /// A landmark a file's writer takes: one in memory, or one whose cells wait in a run's spill
 /// ([`Held`], read back when its record is written).
 pub trait Source {
-    /// The landmark where it is in memory.
-    fn in_memory(&self) -> Option<&Landmark>;
-    /// The whole landmark.
-    fn whole(&self) -> Result<Arc<Landmark>>;
+    /// The landmark: borrowed where it is in memory, read back where it is not.
+    fn landmark(&self) -> Result<Cow<'_, Landmark>>;
+    /// Whether it is read back (validated then, as when it was set aside).
+    fn on_disk(&self) -> bool;
 }
 
 impl<L: Borrow<Landmark>> Source for L {
-    fn in_memory(&self) -> Option<&Landmark> {
-        Some(self.borrow())
+    fn landmark(&self) -> Result<Cow<'_, Landmark>> {
+        Ok(Cow::Borrowed(self.borrow()))
     }
-    fn whole(&self) -> Result<Arc<Landmark>> {
-        Ok(Arc::new(self.borrow().clone()))
+    fn on_disk(&self) -> bool {
+        false
     }
 }
 
 impl Source for Held {
-    fn in_memory(&self) -> Option<&Landmark> {
+    fn landmark(&self) -> Result<Cow<'_, Landmark>> {
         match self {
-            Held::Memory(l) => Some(l),
-            Held::Disk(_) => None,
+            Held::Memory(l) => Ok(Cow::Borrowed(l)),
+            Held::Disk(_) => Ok(Cow::Owned(Arc::unwrap_or_clone(Held::landmark(self)?))),
         }
     }
-    fn whole(&self) -> Result<Arc<Landmark>> {
-        self.landmark()
+    fn on_disk(&self) -> bool {
+        Held::on_disk(self)
     }
 }
 
@@ -180,8 +180,8 @@ pub(crate) fn write_records<L: Source>(
     landmarks: &[L],
     framed: bool,
 ) -> Result<()> {
-    for l in landmarks.iter().filter_map(Source::in_memory) {
-        l.validate()?;
+    for l in landmarks.iter().filter(|l| !l.on_disk()) {
+        l.landmark()?.validate()?;
     }
     let partial = partial_path(path);
     let io = |source| DecodError::Io {
@@ -194,10 +194,7 @@ pub(crate) fn write_records<L: Source>(
         let mut out = Vec::new();
         for l in landmarks {
             out.clear();
-            match l.in_memory() {
-                Some(l) => encode_landmark(&mut out, l, path)?,
-                None => encode_landmark(&mut out, &*l.whole()?, path)?,
-            }
+            encode_landmark(&mut out, &*l.landmark()?, path)?;
             if framed {
                 file.write_all(&(out.len() as u64).to_le_bytes())
                     .map_err(io)?;

@@ -244,7 +244,7 @@ impl PreparedLandmark {
             flipped_bits: bitset(observed.iter().rev().copied()),
             keypoints,
             patches: Patches::Memory(Arc::new(patches)),
-            head: Arc::new(landmark.head()),
+            head: source.stripped(),
             source,
         })
     }
