@@ -8,11 +8,37 @@ use std::path::{Path, PathBuf};
 
 use super::source::{Container, FaultKind, LogFault, MessageSource};
 
-/// A fresh path in the system temp directory (unique per test and name).
-fn temp_path(name: &str) -> PathBuf {
+/// A fresh path in the system temp directory (unique per test and name), removed with its
+/// directory (once empty) when the test is done.
+fn temp_path(name: &str) -> TempFile {
     let dir = std::env::temp_dir().join(format!("decod-io-tests-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    TempFile(dir.join(name))
+}
+
+/// A test's file, removed on drop (the directory too once no other test's file is in it).
+struct TempFile(PathBuf);
+
+impl std::ops::Deref for TempFile {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempFile {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+        if let Some(dir) = self.0.parent() {
+            let _ = std::fs::remove_dir(dir);
+        }
+    }
 }
 
 /// `(log_time, data)` of every message, and the faults.
@@ -72,7 +98,7 @@ fn check_every_cut(bytes: &[u8], container: Container, name: &str, step: usize) 
     assert_eq!((full.len(), faults.len()), (20, 0), "{faults:?}");
     for cut in (0..bytes.len()).step_by(step) {
         std::fs::write(&path, &bytes[..cut]).unwrap();
-        let mut source = MessageSource::new(vec![(path.clone(), container)]);
+        let mut source = MessageSource::new(vec![(path.to_path_buf(), container)]);
         let msgs: Vec<_> = source.by_ref().filter_map(|m| m.ok()).collect();
         assert!(msgs.len() <= full.len(), "cut {cut}");
         for (m, f) in msgs.iter().zip(&full) {
@@ -333,7 +359,7 @@ fn db3_reads_in_row_order_and_refuses_other_files() {
     );
     let not_a_bag = temp_path("notes.db3");
     std::fs::write(&not_a_bag, b"SQLite format 3\0 but nothing else").unwrap();
-    let mut source = MessageSource::new(vec![(not_a_bag, Container::Db3)]);
+    let mut source = MessageSource::new(vec![(not_a_bag.to_path_buf(), Container::Db3)]);
     assert!(source.next().unwrap().is_err());
 }
 
@@ -346,7 +372,7 @@ fn mcap_payload_filter_empties_only_the_rejected_channels() {
     let filter: super::source::PayloadFilter =
         std::sync::Arc::new(|c: &super::source::ChannelMeta| c.topic == "/chatter");
     let mut source =
-        MessageSource::new(vec![(path.clone(), Container::Mcap)]).with_payloads(filter);
+        MessageSource::new(vec![(path.to_path_buf(), Container::Mcap)]).with_payloads(filter);
     let msgs: Vec<_> = source.by_ref().map(|m| m.unwrap()).collect();
     assert!(source.faults().is_empty(), "{:?}", source.faults());
     assert_eq!(msgs.len(), 40);

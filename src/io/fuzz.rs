@@ -98,8 +98,11 @@ proptest! {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join(format!("input-{:?}.{ext}", std::thread::current().id()));
         std::fs::write(&path, [magic, &body].concat()).unwrap();
-        let mut source = MessageSource::new(vec![(path, container)]);
+        let mut source = MessageSource::new(vec![(path.clone(), container)]);
         let read = source.by_ref().take(10_000).count();
+        drop(source);
+        let _ = std::fs::remove_file(&path);
+        let _ = std::fs::remove_dir(&dir);
         prop_assert!(read < 10_000);
     }
 }
