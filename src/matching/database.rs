@@ -283,8 +283,7 @@ impl LandmarkDatabase {
             check_grids(&first.head, &landmark)?;
         }
         let prepared = PreparedLandmark::new(Arc::new(landmark), &self.config, &self.shape)?;
-        self.coarse
-            .push(prepared.coarse.first().map_or(&[][..], |v| &v[..]));
+        self.coarse.push_first(&prepared.coarse);
         self.entries.push(Arc::new(prepared));
         self.positions.push([f64::NAN; 3]);
         self.directions.push([f64::NAN; 3]);
@@ -427,8 +426,7 @@ impl LandmarkDatabase {
     ) -> Result<Vec<usize>> {
         let start = self.entries.len();
         for p in &prepared {
-            self.coarse
-                .push(p.coarse.first().map_or(&[][..], |v| &v[..]));
+            self.coarse.push_first(&p.coarse);
         }
         self.entries.extend(prepared);
         self.positions.resize(self.entries.len(), [f64::NAN; 3]);
@@ -462,7 +460,7 @@ impl LandmarkDatabase {
             parallel: true,
             eligibility: Eligibility::WithinRun,
         };
-        self.query_in(query, cfg, ctx)
+        self.query_in(Held::from(Arc::new(query.clone())), cfg, ctx)
     }
 
     /// [`Self::query`] on one thread (reference for the parallel path; results are identical).
@@ -492,6 +490,26 @@ impl LandmarkDatabase {
         queries
             .par_iter()
             .map(|q| self.query_with(q, cfg, true, eligibility))
+            .collect()
+    }
+
+    /// [`Self::query_batch_with`] on held landmarks: one on disk ([`crate::spill`]) is read
+    /// back when its turn comes and let go once prepared, so the batch never holds the
+    /// queries' cells all at once (a re-inspection's run against its survey).
+    pub fn query_batch_held(
+        &self,
+        queries: &[Held],
+        cfg: &MatchingConfig,
+        eligibility: Eligibility,
+    ) -> Result<Vec<QueryResult>> {
+        let ctx = QueryContext {
+            direction: None,
+            parallel: true,
+            eligibility,
+        };
+        queries
+            .par_iter()
+            .map(|q| self.query_in(q.clone(), cfg, ctx))
             .collect()
     }
 
@@ -535,7 +553,7 @@ impl LandmarkDatabase {
             return queries
                 .par_iter()
                 .enumerate()
-                .map(|(k, q)| self.query_in(&*q.source.landmark()?, cfg, context(k)))
+                .map(|(k, q)| self.query_in(q.source.clone(), cfg, context(k)))
                 .collect();
         }
         if let (Some(first), Some(q)) = (self.entries.first(), queries.first()) {
@@ -611,9 +629,7 @@ impl LandmarkDatabase {
                 .short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
         } else {
             let mut index = CoarseIndex::default();
-            entries
-                .iter()
-                .for_each(|e| index.push(e.coarse.first().map_or(&[][..], |v| &v[..])));
+            entries.iter().for_each(|e| index.push_first(&e.coarse));
             index.short_list(&q.coarse, &eligible, cfg.retrieval_short_list, parallel)
         };
         (short, eligible)
@@ -668,18 +684,18 @@ impl LandmarkDatabase {
             parallel,
             eligibility,
         };
-        self.query_in(query, cfg, ctx)
+        self.query_in(Held::from(Arc::new(query.clone())), cfg, ctx)
     }
 
     /// The query in a context (with its direction, in parallel or not, eligibility).
     fn query_in(
         &self,
-        query: &Landmark,
+        query: Held,
         cfg: &MatchingConfig,
         ctx: QueryContext,
     ) -> Result<QueryResult> {
         if let Some(first) = self.entries.first() {
-            check_grids(&first.head, query)?;
+            check_grids(&first.head, query.head())?;
         }
         // Entries prepared with another config are re-prepared (correct, slower).
         let reprepared;
@@ -695,7 +711,7 @@ impl LandmarkDatabase {
                     .collect::<Result<Vec<_>>>()?;
                 (&reprepared, shape)
             };
-        let q = PreparedLandmark::new_query(Arc::new(query.clone()), cfg, &shape)?;
+        let q = PreparedLandmark::new_query(query, cfg, &shape)?;
         self.query_prepared(&q, entries, &shape, cfg, ctx)
     }
 

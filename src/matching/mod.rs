@@ -42,6 +42,7 @@ use keypoints::Keypoint;
 use normalise::Normalisation;
 use patch_distances::{Distances, PatchFactor, QueryPatches};
 use patches::{CandidatePatches, PatchShape};
+use retrieval::QuantisedQuery;
 use verify::Correspondence;
 
 /// Why a pair or a query was not accepted (reported, never silent).
@@ -122,19 +123,19 @@ pub struct PreparedLandmark {
     /// The landmark prepared (in memory or on disk): for what needs its cells again.
     pub source: Held,
     /// Observed mask as a bitset (bit `i` = flat cell `i`), heading 0 (after
-    /// [`normalise::smooth_along_p`] filled isolated gaps, if enabled).
+    /// [`normalise::smooth_along_p`] filled isolated gaps, if enabled); a query flips it
+    /// ([`QuerySide::new`]).
     observed_bits: Vec<u64>,
-    /// The same mask under the heading flip (flat reversal).
-    flipped_bits: Vec<u64>,
     /// Keypoints (heading 0), strongest first.
     pub keypoints: Vec<Keypoint>,
     /// The keypoints' patches (compact; the GEMM factor is built from them per comparison),
     /// in memory or set aside on disk ([`Self::set_aside`]).
     patches: Patches,
-    /// Coarse signatures: for a query ([`Self::new_query`]) both headings at a few axial
-    /// shifts ([`retrieval::query_signatures`]); for a database entry the first of those only
+    /// Coarse signatures, quantised as the scan reads them: for a query
+    /// ([`Self::new_query`]) both headings at a few axial shifts
+    /// ([`retrieval::query_signatures`]); for a database entry the first of those only
     /// (forward, unshifted), what the entry is indexed by.
-    pub coarse: Vec<Vec<f32>>,
+    pub coarse: QuantisedQuery,
     /// Earliest and latest scan stamp of the submap (eligibility's fast path).
     scan_span: (f64, f64),
 }
@@ -145,6 +146,13 @@ pub struct PreparedLandmark {
 enum Patches {
     Memory(Arc<CandidatePatches>),
     Disk(Record),
+}
+
+/// The bitset of a `rows x cols` mask under the heading flip (flat reversal): what a query
+/// compares under [`Heading::Reversed`], derived once per query rather than kept per view.
+fn flipped(bits: &[u64], (rows, cols): (usize, usize)) -> Vec<u64> {
+    let bit = |i: usize| bits.get(i / 64).is_some_and(|w| w >> (i % 64) & 1 == 1);
+    bitset((0..rows * cols).rev().map(bit))
 }
 
 fn bitset(bits: impl Iterator<Item = bool>) -> Vec<u64> {
@@ -213,11 +221,11 @@ impl PreparedLandmark {
             field.clone()
         };
         let signatures = || {
-            if query {
+            QuantisedQuery::new(&if query {
                 retrieval::query_signatures(&compared, &observed, d.rows, d.cols)
             } else {
                 vec![retrieval::signature(&compared, &observed, d.rows, d.cols)]
-            }
+            })
         };
         let keypoints_and_patches = || {
             let keypoints = keypoints::detect(&field, &observed, d.rows, d.cols, cfg, |r, c| {
@@ -241,7 +249,6 @@ impl PreparedLandmark {
             coarse,
             scan_span,
             observed_bits: bitset(observed.iter().copied()),
-            flipped_bits: bitset(observed.iter().rev().copied()),
             keypoints,
             patches: Patches::Memory(Arc::new(patches)),
             head: source.stripped(),
@@ -300,9 +307,9 @@ impl PreparedLandmark {
             Patches::Memory(p) => p.heap_bytes(),
             Patches::Disk(_) => 0,
         };
-        let bits = 8 * (self.observed_bits.len() + self.flipped_bits.len());
+        let bits = 8 * self.observed_bits.len();
         let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
-        let coarse = 4 * self.coarse.iter().map(Vec::len).sum::<usize>();
+        let coarse = self.coarse.heap_bytes();
         landmark + patches + bits + keypoints + coarse
     }
 }
@@ -323,7 +330,7 @@ impl QuerySide {
     pub fn new(p: &PreparedLandmark) -> Result<Self> {
         Ok(Self {
             sides: [OnceLock::new(), OnceLock::new()],
-            flipped_bits: p.flipped_bits.clone(),
+            flipped_bits: flipped(&p.observed_bits, p.grid()),
             patches: p.patches()?,
         })
     }

@@ -991,6 +991,11 @@ fn views_prepared_once_compare_and_query_like_fresh_ones() {
         .unwrap();
     assert_eq!(got, fresh.query_batch(&queries, &c).unwrap());
     assert!(got.iter().filter(|r| r.accepted).count() >= 5);
+    // Queries on disk, read back one at a time (a re-inspection's batch), find the same.
+    let held = shared
+        .query_batch_held(&on_disk[n..], &c, database::Eligibility::WithinRun)
+        .unwrap();
+    assert_eq!(held, got);
     // Under another config the entries are prepared again, from the cells on disk.
     let mut other = c.clone();
     other.max_keypoints += 1;
@@ -1087,4 +1092,18 @@ fn a_views_patches_come_back_exactly_and_a_record_of_other_sizes_is_refused() {
     let mut longer = bytes.clone();
     longer.push(0);
     assert!(patches::CandidatePatches::decode(&longer, path).is_err());
+}
+
+#[test]
+fn a_querys_flipped_mask_is_the_reversed_mask_on_any_grid() {
+    // A view keeps its mask at heading 0 only; a query derives the flipped one. Grids whose
+    // cell count is and is not a multiple of the 64 bits of a word.
+    let mut rng = Rng::new(5);
+    for (rows, cols) in [(16, 256), (5, 13), (1, 64), (3, 1)] {
+        let mask: Vec<bool> = (0..rows * cols).map(|_| rng.normal() > 0.3).collect();
+        let bits = bitset(mask.iter().copied());
+        let expected = bitset(mask.iter().rev().copied());
+        assert_eq!(flipped(&bits, (rows, cols)), expected, "{rows} x {cols}");
+        assert_eq!(flipped(&flipped(&bits, (rows, cols)), (rows, cols)), bits);
+    }
 }

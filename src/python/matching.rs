@@ -528,13 +528,10 @@ impl PyLandmarkDatabase {
         cross_session: bool,
     ) -> PyResult<Vec<PyQueryResult>> {
         let cfg = config_from_json(config_json)?;
-        let qs: Vec<Landmark> = landmarks_of(&queries)?
-            .into_iter()
-            .map(Arc::unwrap_or_clone)
-            .collect();
+        let qs = held_of(&queries);
         let db = &self.inner;
         let eligibility = eligibility_of(cross_session, false);
-        let results = detached(py, move || db.query_batch_with(&qs, &cfg, eligibility))?;
+        let results = detached(py, move || db.query_batch_held(&qs, &cfg, eligibility))?;
         Ok(results
             .into_iter()
             .map(|inner| PyQueryResult { inner })
