@@ -354,3 +354,46 @@ def test_a_view_tied_beside_its_survey_candidate_names_no_survey_joint() -> None
     joint_of = np.array([0, 0, 0, 1])
     assert survey_joint_ids(cross, joint_of, 0.4) == {0: 7}  # type: ignore[arg-type]
     assert survey_joint_ids(cross, joint_of, 1.0) == {0: 7, 1: 7}  # type: ignore[arg-type]
+
+
+def test_a_survey_waits_on_disk_and_reinspects_the_same(
+    runs: dict[str, Path], tmp_path: Path
+) -> None:
+    """A survey loaded into a spill holds its landmarks' heads, not their cells, and its
+    database keeps its patches there too; the landmarks, the database's answers and a whole
+    re-inspection (``run_log`` puts the survey beside the run's own landmarks by default)
+    are the same as with everything in memory."""
+    in_memory = load_survey(runs["survey"])
+    spill = _core.Spill(tmp_path)
+    on_disk = load_survey(runs["survey"], spill)
+    assert on_disk.spill is spill and all(lm.on_disk for lm in on_disk.landmarks)
+    assert not any(lm.on_disk for lm in in_memory.landmarks)
+    assert spill.bytes > 25_000 * len(on_disk.landmarks)
+    for a, b in zip(in_memory.landmarks, on_disk.landmarks, strict=True):
+        assert a.to_json() == b.to_json()
+    before = spill.bytes
+    cfg = survey_config(in_memory)
+    dbs = [survey_database(s, cfg) for s in (in_memory, on_disk)]
+    assert spill.bytes > before + 10_000 * len(on_disk.landmarks)  # the entries' patches
+    queries = load_survey(runs["again"]).landmarks
+    got = [db.query_batch(queries, cross_session=True) for db in dbs]
+    assert [r.candidate_index for r in got[0]] == [r.candidate_index for r in got[1]]
+    assert [(r.inliers, r.score, r.dz_m) for r in got[0]] == [
+        (r.inliers, r.score, r.dz_m) for r in got[1]
+    ]
+    assert sum(r.accepted for r in got[1]) >= 20
+
+    out = tmp_path / "again_in_memory"
+    run_log(
+        runs["sim_again"] / "log",
+        out,
+        preset="pipe",
+        imu_topic="/imu",
+        progress=False,
+        survey=runs["survey"],
+        plots=False,
+        landmarks_on_disk=False,
+    )
+    for name in ("corrected.tum", "loops.csv", "joints.csv", "landmarks.csv", "changes.csv"):
+        assert (out / name).read_bytes() == (runs["again"] / name).read_bytes(), name
+    assert not list(tmp_path.glob(".decod-landmarks-*"))

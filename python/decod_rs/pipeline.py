@@ -88,11 +88,15 @@ def run_log(
     ``landmarks_on_disk``: the landmarks' cells wait in a file beside ``out_dir`` (unlinked
     at once on Unix: it leaves nothing behind) from their extraction on, and their views'
     patches while they are matched, so that memory grows by about 4 KB a landmark with the
-    log instead of about 50 (:mod:`decod_rs.stages.extract`); False keeps both in memory.
-    The outputs are the same either way, byte for byte.
+    log instead of about 50 (:mod:`decod_rs.stages.extract`); a survey's landmarks and
+    their database's patches wait there too. False keeps all of them in memory. The
+    outputs are the same either way, byte for byte.
     """
-    srv = _checked_arguments(mode, preset, rerun, survey)  # fail before the run, not after it
+    _check_arguments(mode, preset, rerun)  # fail before the run, not after it
     log, out = Path(log), check_run_dir(Path(out_dir))
+    spill = landmark_spill(out) if landmarks_on_disk else None
+    # The survey's landmarks wait beside the run's (a whole earlier run's cells).
+    srv = None if survey is None else load_survey(survey, spill)
     if imu_topic is None and use_imu:
         # Gravity from the IMU when the log has exactly one; the sensor's -z otherwise.
         imu_topic = find_imu_topic(log)
@@ -110,7 +114,6 @@ def run_log(
         return cfg, auto, imu
 
     # The voxel map costs 2-12 % of the stream: kept only when a map or recording is asked.
-    spill = landmark_spill(out) if landmarks_on_disk else None
     one = stage_one(log, topics, configured, progress, map or rerun is not None, spill)
     head = {"preset": preset, "auto": one.auto, "imu_topic": imu_topic, "ingest": one.ingest}
     # Written into OUT.partial, published into OUT at the end: never a half-written OUT.
@@ -132,11 +135,9 @@ def run_log(
     return summary
 
 
-def _checked_arguments(
-    mode: str, preset: str, rerun: str | Path | None, survey: str | Path | None
-) -> Survey | None:
-    """``run_log``'s choices checked, rerun-sdk found if a recording is asked for, and the
-    survey loaded (``None`` without one): every refusal before the run, not after it."""
+def _check_arguments(mode: str, preset: str, rerun: str | Path | None) -> None:
+    """``run_log``'s choices checked and rerun-sdk found if a recording is asked for (the
+    survey is loaded next): every refusal before the run, not after it."""
     if mode not in MODES:
         raise ValueError(f"mode: {mode!r} is not one of {MODES}")
     if preset not in PRESET_CHOICES:
@@ -145,7 +146,6 @@ def _checked_arguments(
         from decod_rs.recording import require_rerun
 
         require_rerun()
-    return None if survey is None else load_survey(survey)
 
 
 def finish_run(

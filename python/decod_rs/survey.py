@@ -92,7 +92,9 @@ class Survey:
     """A loaded survey: ``landmarks`` (L) with ``joint_ids`` (L,); ``anchor_stamps`` (A,)
     and ``anchor_poses`` (A, 4, 4) corrected ``world_from_anchor`` in the survey frame;
     ``path`` (P, 3) its outbound path; ``joint_chainage`` survey joint id -> chainage (m);
-    ``config`` the survey run's config; ``header`` the whole header."""
+    ``config`` the survey run's config; ``header`` the whole header; ``spill`` where the
+    landmarks' cells wait (None: in memory), and the patches of the database made of them
+    (:func:`survey_database`)."""
 
     source: Path
     landmarks: list[Landmark]
@@ -103,6 +105,7 @@ class Survey:
     joint_chainage: dict[int, float]
     config: dict[str, Any]
     header: dict[str, Any]
+    spill: _core.Spill | None = None
 
     def anchor_pose(self, stamp: float) -> FloatArray:
         """The corrected pose of the anchor at ``stamp`` (the nearest anchor)."""
@@ -138,10 +141,12 @@ def write_survey(
     return target
 
 
-def load_survey(run_dir: str | Path) -> Survey:
+def load_survey(run_dir: str | Path, spill: _core.Spill | None = None) -> Survey:
     """The survey written by ``decod run`` into ``run_dir`` (or the file itself).
     ``FileNotFoundError`` names what is missing; ``DatabaseError`` another format version or
-    a corrupt file."""
+    a corrupt file. ``spill``: the landmarks' cells go there as they are read, and the
+    survey database's patches when it is made (a survey holds a whole earlier run's
+    landmarks, 29 KB each; the same results either way)."""
     path = Path(run_dir)
     if path.is_dir():
         path = path / SURVEY_FILE
@@ -150,7 +155,7 @@ def load_survey(run_dir: str | Path) -> Survey:
             f"{path}: no survey: --survey takes the output directory of an earlier `decod run` "
             f"(it writes {SURVEY_FILE})"
         )
-    text, landmarks = _core.read_survey(str(path))
+    text, landmarks = _core.read_survey(str(path), spill)
     header = json.loads(text)
     anchors = header.get("anchors", [])
     poses = np.array([a["pose"] for a in anchors], dtype=np.float64).reshape(-1, 4, 4)
@@ -164,6 +169,7 @@ def load_survey(run_dir: str | Path) -> Survey:
         joint_chainage={int(j["joint_id"]): float(j["chainage_m"]) for j in header["joints"]},
         config=header.get("config", {}),
         header=header,
+        spill=spill,
     )
 
 
@@ -454,7 +460,8 @@ def survey_database(survey: Survey, cfg: Config) -> LandmarkDatabase:
     64 beams and a turn 635 -> 640, every one within 0.15 m of the truth."""
     db = LandmarkDatabase(cfg)
     origins, axes = survey_placement(survey)
-    stored = db.extend(survey.landmarks, [int(j) for j in survey.joint_ids], origins)
+    ids = [int(j) for j in survey.joint_ids]
+    stored = db.extend(survey.landmarks, ids, origins, spill=survey.spill)
     if stored:
         db.set_directions(stored, axes)
     return db

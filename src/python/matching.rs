@@ -15,7 +15,6 @@ use super::errors::to_py_err;
 use super::landmark::{PyLandmark, PySpill, held_of};
 use crate::config::MatchingConfig;
 use crate::error::DecodError;
-use crate::landmark::Landmark;
 use crate::matching::Heading;
 use crate::matching::database::Eligibility;
 use crate::matching::synthetic::{Grid, JointSurface, Observation, Rng, SurfaceParams};
@@ -40,11 +39,6 @@ fn config_from_json(text: &str) -> PyResult<MatchingConfig> {
     whole.matching = cfg.clone();
     whole.validate().map_err(to_py_err)?;
     Ok(cfg)
-}
-
-/// The whole landmarks of `items` (those on disk read back).
-fn landmarks_of(items: &[PyRef<'_, PyLandmark>]) -> PyResult<Vec<Arc<Landmark>>> {
-    items.iter().map(|l| l.whole()).collect()
 }
 
 /// One query/candidate comparison (see `decod::matching::PairResult`).
@@ -394,19 +388,22 @@ impl PyLandmarkDatabase {
         let db = &mut self.inner;
         detached(py, move || db.add_view(l, boundary))
     }
-    /// Prepares (in parallel) and stores views with their physical boundary ids.
+    /// Prepares (in parallel) and stores views with their physical boundary ids; `spill`:
+    /// where the entries' patches wait (None: memory).
+    #[pyo3(signature = (landmarks, boundaries, spill = None))]
     fn extend_views(
         &mut self,
         py: Python<'_>,
         landmarks: Vec<PyRef<'_, PyLandmark>>,
         boundaries: Vec<u64>,
+        spill: Option<PyRef<'_, PySpill>>,
     ) -> PyResult<Vec<usize>> {
-        let ls: Vec<Landmark> = landmarks_of(&landmarks)?
-            .into_iter()
-            .map(Arc::unwrap_or_clone)
-            .collect();
+        let ls = held_of(&landmarks);
+        let spill = spill.map(|s| Arc::clone(&s.inner));
         let db = &mut self.inner;
-        detached(py, move || db.extend_views(ls, boundaries))
+        detached(py, move || {
+            db.extend_views_on(ls, boundaries, spill.as_ref())
+        })
     }
     /// Stores the views at `indices` of `views` (prepared under this database's config),
     /// each under its physical boundary id; returns their indices.
@@ -485,18 +482,19 @@ impl PyLandmarkDatabase {
     fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
         rows_to_numpy(py, self.inner.positions())
     }
-    /// Prepares (in parallel) and stores landmarks; returns their indices.
+    /// Prepares (in parallel) and stores landmarks; returns their indices. `spill`: where
+    /// the entries' patches wait (None: memory).
+    #[pyo3(signature = (landmarks, spill = None))]
     fn extend(
         &mut self,
         py: Python<'_>,
         landmarks: Vec<PyRef<'_, PyLandmark>>,
+        spill: Option<PyRef<'_, PySpill>>,
     ) -> PyResult<Vec<usize>> {
-        let ls: Vec<Landmark> = landmarks_of(&landmarks)?
-            .into_iter()
-            .map(Arc::unwrap_or_clone)
-            .collect();
+        let ls = held_of(&landmarks);
+        let spill = spill.map(|s| Arc::clone(&s.inner));
         let db = &mut self.inner;
-        detached(py, move || db.extend(ls))
+        detached(py, move || db.extend_on(ls, spill.as_ref()))
     }
     /// Best eligible candidate for `query`; `direction` (3,): its corridor axis in the frame
     /// of `set_directions` (the heading prior).

@@ -2,14 +2,16 @@
 //! for landmarks a run sets aside while it rebuilds (`decod::park`).
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use pyo3::prelude::*;
 
 use super::detached;
 use super::errors::to_py_err;
-use super::landmark::{PyLandmark, held_of};
+use super::landmark::{PyLandmark, PySpill, held_of};
 use crate::error::DecodError;
 use crate::park;
+use crate::spill::Held;
 use crate::survey::{self, FORMAT_VERSION, Survey};
 
 /// Writes a survey: `header_json` (a JSON object with `joint_ids`, one per landmark) and the
@@ -29,15 +31,28 @@ fn write_survey(
 }
 
 /// Reads a survey: `(header_json, landmarks)`; `DatabaseError` for another format version,
-/// a foreign, truncated or inconsistent file.
+/// a foreign, truncated or inconsistent file. With `spill`, each landmark's cells go there
+/// as it is read (`Survey::read_into`): the landmarks hold their heads in memory.
 #[pyfunction]
-fn read_survey(py: Python<'_>, path: PathBuf) -> PyResult<(String, Vec<PyLandmark>)> {
-    let survey = detached(py, move || Survey::read(&path))?;
-    let header = serde_json::to_string(&survey.header)
+#[pyo3(signature = (path, spill = None))]
+fn read_survey(
+    py: Python<'_>,
+    path: PathBuf,
+    spill: Option<PyRef<'_, PySpill>>,
+) -> PyResult<(String, Vec<PyLandmark>)> {
+    let spill = spill.map(|s| Arc::clone(&s.inner));
+    let (header, held) = detached(py, move || match spill {
+        Some(spill) => Survey::read_into(&path, &spill),
+        None => Survey::read(&path).map(|s| {
+            let held = s.landmarks.into_iter().map(Held::from).collect();
+            (s.header, held)
+        }),
+    })?;
+    let header = serde_json::to_string(&header)
         .map_err(|e| to_py_err(DecodError::invalid("survey header", e.to_string())))?;
     Ok((
         header,
-        survey.landmarks.into_iter().map(PyLandmark::new).collect(),
+        held.into_iter().map(PyLandmark::from_held).collect(),
     ))
 }
 
