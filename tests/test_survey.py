@@ -43,8 +43,10 @@ def _sim(root: Path, name: str, **kwargs: object) -> Path:
     return out
 
 
-def _run(sim: Path, out: Path, survey: Path | None = None) -> Path:
-    run_log(sim / "log", out, preset="pipe", imu_topic="/imu", progress=False, survey=survey)
+def _run(sim: Path, out: Path, survey: Path | None = None, **options: bool) -> Path:
+    run_log(
+        sim / "log", out, preset="pipe", imu_topic="/imu", progress=False, survey=survey, **options
+    )
     return out
 
 
@@ -257,16 +259,7 @@ def test_every_run_writes_a_survey_and_other_versions_are_refused(
 
 def test_no_plots_leaves_out_the_changes_figure(runs: dict[str, Path], tmp_path: Path) -> None:
     """``--no-plots`` (``plots=False``) writes the change table but not its figure."""
-    out = tmp_path / "again"
-    run_log(
-        runs["sim_again"] / "log",
-        out,
-        preset="pipe",
-        imu_topic="/imu",
-        progress=False,
-        survey=runs["survey"],
-        plots=False,
-    )
+    out = _run(runs["sim_again"], tmp_path / "again", runs["survey"], plots=False)
     assert _rows(out / "changes.csv") == _rows(runs["again"] / "changes.csv")
     assert not (out / "changes.png").exists()
     assert not list(out.glob("*.png"))
@@ -383,16 +376,8 @@ def test_a_survey_waits_on_disk_and_reinspects_the_same(
     ]
     assert sum(r.accepted for r in got[1]) >= 20
 
-    out = tmp_path / "again_in_memory"
-    run_log(
-        runs["sim_again"] / "log",
-        out,
-        preset="pipe",
-        imu_topic="/imu",
-        progress=False,
-        survey=runs["survey"],
-        plots=False,
-        landmarks_on_disk=False,
+    out = _run(
+        runs["sim_again"], tmp_path / "memory", runs["survey"], plots=False, landmarks_on_disk=False
     )
     for name in ("corrected.tum", "loops.csv", "joints.csv", "landmarks.csv", "changes.csv"):
         assert (out / name).read_bytes() == (runs["again"] / name).read_bytes(), name
