@@ -382,3 +382,41 @@ def test_a_survey_waits_on_disk_and_reinspects_the_same(
     for name in ("corrected.tum", "loops.csv", "joints.csv", "landmarks.csv", "changes.csv"):
         assert (out / name).read_bytes() == (runs["again"] / name).read_bytes(), name
     assert not list(tmp_path.glob(".decod-landmarks-*"))
+
+
+def test_a_survey_on_a_full_disk_stays_in_memory(
+    runs: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A disk that fills up while the survey is read, or while its database is prepared: the
+    survey stays in memory, says so, and answers as it would have."""
+    from decod_rs import survey as survey_module
+
+    read, extend = _core.read_survey, LandmarkDatabase.extend
+    full = OSError(28, "No space left on device", "landmarks.spill")
+
+    def read_on_full_disk(path: str, spill: _core.Spill | None = None) -> object:
+        if spill is not None:
+            raise full
+        return read(path)
+
+    monkeypatch.setattr(survey_module._core, "read_survey", read_on_full_disk)
+    loaded = load_survey(runs["survey"], _core.Spill(tmp_path))
+    assert loaded.spill is None and not any(lm.on_disk for lm in loaded.landmarks)
+    assert "the survey's landmarks stay in memory" in capsys.readouterr().err
+    monkeypatch.setattr(survey_module._core, "read_survey", read)
+
+    def extend_on_full_disk(self: LandmarkDatabase, *args: object, **kwargs: object) -> object:
+        if kwargs.get("spill") is not None:
+            raise full
+        return extend(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(LandmarkDatabase, "extend", extend_on_full_disk)
+    on_disk = load_survey(runs["survey"], _core.Spill(tmp_path))
+    cfg = survey_config(on_disk)
+    db = survey_database(on_disk, cfg)
+    assert "the survey database stays in memory" in capsys.readouterr().err
+    assert db.boundaries() == [int(j) for j in on_disk.joint_ids]
+    np.testing.assert_allclose(db.positions(), survey_origins(on_disk))

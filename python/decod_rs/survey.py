@@ -29,6 +29,7 @@ whose views matched a survey joint carries its id (``joints.csv`` ``survey_joint
 from __future__ import annotations
 
 import json
+import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -155,7 +156,14 @@ def load_survey(run_dir: str | Path, spill: _core.Spill | None = None) -> Survey
             f"{path}: no survey: --survey takes the output directory of an earlier `decod run` "
             f"(it writes {SURVEY_FILE})"
         )
-    text, landmarks = _core.read_survey(str(path), spill)
+    try:
+        text, landmarks = _core.read_survey(str(path), spill)
+    except OSError as exc:  # a full disk: the survey stays in memory, as the run's would
+        if spill is None:
+            raise
+        print(f"warning: {exc}; the survey's landmarks stay in memory", file=sys.stderr)
+        spill = None
+        text, landmarks = _core.read_survey(str(path))
     header = json.loads(text)
     anchors = header.get("anchors", [])
     poses = np.array([a["pose"] for a in anchors], dtype=np.float64).reshape(-1, 4, 4)
@@ -461,7 +469,14 @@ def survey_database(survey: Survey, cfg: Config) -> LandmarkDatabase:
     db = LandmarkDatabase(cfg)
     origins, axes = survey_placement(survey)
     ids = [int(j) for j in survey.joint_ids]
-    stored = db.extend(survey.landmarks, ids, origins, spill=survey.spill)
+    try:
+        stored = db.extend(survey.landmarks, ids, origins, spill=survey.spill)
+    except OSError as exc:  # a full disk: the database's patches stay in memory
+        if survey.spill is None:
+            raise
+        print(f"warning: {exc}; the survey database stays in memory", file=sys.stderr)
+        db = LandmarkDatabase(cfg)
+        stored = db.extend(survey.landmarks, ids, origins)
     if stored:
         db.set_directions(stored, axes)
     return db
