@@ -22,7 +22,7 @@
 
 use std::borrow::{Borrow, Cow};
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -233,18 +233,26 @@ impl Survey {
 }
 
 /// Reads the survey at `path` (module docs): checks its magic, version, header and sizes
-/// (the landmark count bounded by the bytes left before anything is allocated for it) and
+/// (the landmark count bounded by the file's size before anything is allocated for it) and
 /// hands each landmark, validated, to `each`, in order. The header and what `each` made.
+/// The file is read a record at a time (a record's length follows from the counts at its
+/// start), so a survey put into a spill never has its whole file in memory.
 fn read_records<T>(
     path: &Path,
     mut each: impl FnMut(Landmark) -> Result<T>,
 ) -> Result<(Value, Vec<T>)> {
-    let bytes = std::fs::read(path).map_err(|source| DecodError::Io {
+    let io = |source| DecodError::Io {
         path: path.to_path_buf(),
         source,
-    })?;
-    let mut r = Reader::new(&bytes, path);
-    let header = read_header(&mut r, path)?;
+    };
+    let file = File::open(path).map_err(io)?;
+    let size = file.metadata().map_err(io)?.len();
+    let mut input = Records {
+        file: BufReader::new(file),
+        left: size,
+        path,
+    };
+    let header = read_header(&mut input)?;
     let n = header
         .get("landmarks")
         .and_then(Value::as_u64)
@@ -257,29 +265,76 @@ fn read_records<T>(
         ));
     }
     // Bound the count by the bytes left before allocating for it.
-    if n > r.left() as u64 / MIN_RECORD_BYTES {
+    if n > input.left / MIN_RECORD_BYTES {
         return Err(err(path, format!("{n} landmarks cannot fit in the file")));
     }
     let mut out = Vec::with_capacity(n as usize);
     for k in 0..n as usize {
-        let l = r
+        let l = input
             .landmark()
-            .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
-        l.validate()
+            .and_then(|l| l.validate().map(|()| l))
             .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
         out.push(each(l)?);
     }
-    if r.left() != 0 {
+    if input.left != 0 {
         return Err(err(
             path,
-            format!("{} unexpected bytes at the end", r.left()),
+            format!("{} unexpected bytes at the end", input.left),
         ));
     }
     Ok((header, out))
 }
 
+/// A survey file read in order, with the bytes it has left.
+struct Records<'a, R> {
+    file: R,
+    left: u64,
+    path: &'a Path,
+}
+
+impl<R: Read> Records<'_, R> {
+    /// The next `n` bytes (`n` checked against the bytes left first).
+    fn take(&mut self, n: u64) -> Result<Vec<u8>> {
+        if n > self.left {
+            return Err(err(
+                self.path,
+                format!("truncated: {n} bytes needed, {} left", self.left),
+            ));
+        }
+        let mut buf = vec![0u8; n as usize];
+        self.file
+            .read_exact(&mut buf)
+            .map_err(|source| DecodError::Io {
+                path: self.path.to_path_buf(),
+                source,
+            })?;
+        self.left -= n;
+        Ok(buf)
+    }
+
+    /// The next landmark record: its fixed part, whose counts give the rest's length.
+    fn landmark(&mut self) -> Result<Landmark> {
+        let mut record = self.take(MIN_RECORD_BYTES)?;
+        let rest = Reader::new(&record, self.path).rest_of_record()?;
+        record.extend(self.take(rest)?);
+        let mut r = Reader::new(&record, self.path);
+        let landmark = r.landmark()?;
+        match r.left() {
+            0 => Ok(landmark),
+            n => Err(err(self.path, format!("{n} bytes of a record left unread"))),
+        }
+    }
+}
+
 /// The magic, the format version and the JSON header at the start of a survey.
-fn read_header(r: &mut Reader<'_>, path: &Path) -> Result<Value> {
+fn read_header<R: Read>(input: &mut Records<'_, R>) -> Result<Value> {
+    const PREFIX: u64 = 8 + 4 + 8;
+    let path = input.path;
+    if input.left < PREFIX {
+        return Err(err(path, "not a decod survey (no DECODSVY magic)"));
+    }
+    let prefix = input.take(PREFIX)?;
+    let mut r = Reader::new(&prefix, path);
     if r.take(8).ok() != Some(&MAGIC[..]) {
         return Err(err(path, "not a decod survey (no DECODSVY magic)"));
     }
@@ -298,8 +353,7 @@ fn read_header(r: &mut Reader<'_>, path: &Path) -> Result<Value> {
     if n > MAX_HEADER_BYTES {
         return Err(err(path, format!("header of {n} bytes is implausible")));
     }
-    serde_json::from_slice(r.take(n as usize)?)
-        .map_err(|e| err(path, format!("corrupt header: {e}")))
+    serde_json::from_slice(&input.take(n)?).map_err(|e| err(path, format!("corrupt header: {e}")))
 }
 
 /// A bounds-checked little-endian cursor.
@@ -358,9 +412,9 @@ impl<'a> Reader<'a> {
             .collect())
     }
 
-    pub(crate) fn landmark(&mut self) -> Result<Landmark> {
-        let f = self.f64s(17)?;
-        let v3 = |i: usize| [f[i], f[i + 1], f[i + 2]];
+    /// A record's counts (rows, cols, scans, contour points), read after its 17 f64 and
+    /// checked against the format's bounds.
+    fn counts(&mut self) -> Result<(usize, usize, usize, usize)> {
         let (rows, cols) = (self.u32()? as usize, self.u32()? as usize);
         let (scans, contour) = (self.u32()? as usize, self.u32()? as usize);
         let cells = rows.saturating_mul(cols);
@@ -372,6 +426,24 @@ impl<'a> Reader<'a> {
                 ),
             ));
         }
+        Ok((rows, cols, scans, contour))
+    }
+
+    /// How many bytes of a record follow its fixed part ([`MIN_RECORD_BYTES`], which this
+    /// reader holds): the scan stamps, the contour, the normals, the offsets and the mask,
+    /// as [`Self::landmark`] reads them.
+    fn rest_of_record(&mut self) -> Result<u64> {
+        self.take(17 * 8)?;
+        let (rows, cols, scans, contour) = self.counts()?;
+        let cells = rows * cols;
+        Ok((8 * scans + 16 * contour + 16 * cols + 4 * cells + cells.div_ceil(8)) as u64)
+    }
+
+    pub(crate) fn landmark(&mut self) -> Result<Landmark> {
+        let f = self.f64s(17)?;
+        let v3 = |i: usize| [f[i], f[i + 1], f[i + 2]];
+        let (rows, cols, scans, contour) = self.counts()?;
+        let cells = rows * cols;
         let scan_stamps = self.f64s(scans)?;
         let points = self.f64s(2 * contour)?;
         let normal_e1 = self.f64s(cols)?;
@@ -518,6 +590,16 @@ mod tests {
         huge[rows_at..rows_at + 4].copy_from_slice(&65_536u32.to_le_bytes());
         huge[rows_at + 4..rows_at + 8].copy_from_slice(&32_768u32.to_le_bytes());
         check(&huge, "implausible sizes");
+        // Read a record at a time: every cut is refused, a byte more too.
+        for cut in (0..good.len()).step_by(97).chain([good.len() - 1]) {
+            let p = dir.join("cut.decod");
+            assert!(std::fs::write(&p, &good[..cut]).is_ok());
+            assert!(Survey::read(&p).is_err(), "cut at {cut}");
+        }
+        check(
+            &[&good[..], &[0u8]].concat(),
+            "1 unexpected bytes at the end",
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }
