@@ -128,7 +128,7 @@ class PairMemo:
         """Every landmark prepared for the matcher once (on first use): the comparisons
         here and the run's database and queries (:meth:`LandmarkDatabase.extend_prepared`)
         share them until :meth:`release_views`. Given a spill, each view's patches (about
-        17 KB of its 25) wait there and every comparison reads back what it needs."""
+        17 KB of its 22) wait there and every comparison reads back what it needs."""
         if self._views is None:
             self._views = _core.PreparedViews(self._landmarks, self._config, self._spill)
         return self._views

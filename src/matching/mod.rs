@@ -265,7 +265,7 @@ impl PreparedLandmark {
     }
 
     /// Moves the patches (the compared field and the keypoints' centres, about 17 KB of a
-    /// view's 25) into `spill`: each comparison then reads them back (about 17 KB against a
+    /// view's 22) into `spill`: each comparison then reads them back (about 17 KB against a
     /// pair's 0.2 ms of products), and memory holds the rest of the view.
     pub fn set_aside(&mut self, spill: &Arc<Spill>) -> Result<()> {
         if let Patches::Memory(p) = &self.patches {
