@@ -151,8 +151,13 @@ enum Patches {
 /// The bitset of a `rows x cols` mask under the heading flip (flat reversal): what a query
 /// compares under [`Heading::Reversed`], derived once per query rather than kept per view.
 fn flipped(bits: &[u64], (rows, cols): (usize, usize)) -> Vec<u64> {
+    let n = rows * cols;
+    if n % 64 == 0 && bits.len() == n / 64 {
+        // Whole words (every grid of the presets): the words in reverse, each reversed.
+        return bits.iter().rev().map(|w| w.reverse_bits()).collect();
+    }
     let bit = |i: usize| bits.get(i / 64).is_some_and(|w| w >> (i % 64) & 1 == 1);
-    bitset((0..rows * cols).rev().map(bit))
+    bitset((0..n).rev().map(bit))
 }
 
 fn bitset(bits: impl Iterator<Item = bool>) -> Vec<u64> {
