@@ -135,7 +135,7 @@ class PairMemo:
 
     def release_views(self) -> None:
         """Free the prepared views (about 22 KB a landmark with their patches in memory,
-        4 KB with them on disk, beside the landmark's own 29 KB:
+        3 KB with them on disk, beside the landmark's own 29 KB:
         ``docs/measurements.md``, "Long logs"); later comparisons prepare only the
         landmarks they use."""
         self._views, self._released = None, True

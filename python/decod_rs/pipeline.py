@@ -87,7 +87,7 @@ def run_log(
     (:mod:`decod_rs.reinspection`); without ``preset``/``config_path`` its config is used.
     ``landmarks_on_disk``: the landmarks' cells wait in a file beside ``out_dir`` (unlinked
     at once on Unix: it leaves nothing behind) from their extraction on, and their views'
-    patches while they are matched, so that memory grows by about 4 KB a landmark with the
+    patches while they are matched, so that memory grows by about 3 KB a landmark with the
     log instead of about 50 (:mod:`decod_rs.stages.extract`); a survey's landmarks and
     their database's patches wait there too. False keeps all of them in memory. The
     outputs are the same either way, byte for byte.

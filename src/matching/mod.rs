@@ -38,7 +38,7 @@ use crate::spill::{Held, Record, Spill};
 
 pub use database::{LandmarkDatabase, QueryResult};
 pub use heading::Heading;
-use keypoints::Keypoint;
+use keypoints::{AtCell, KeptCell};
 use normalise::Normalisation;
 use patch_distances::{Distances, PatchFactor, QueryPatches};
 use patches::{CandidatePatches, PatchShape};
@@ -126,8 +126,8 @@ pub struct PreparedLandmark {
     /// [`normalise::smooth_along_p`] filled isolated gaps, if enabled); a query flips it
     /// ([`QuerySide::new`]).
     observed_bits: Vec<u64>,
-    /// Keypoints (heading 0), strongest first.
-    pub keypoints: Vec<Keypoint>,
+    /// Keypoints (heading 0), strongest first: their cells.
+    pub keypoints: Vec<KeptCell>,
     /// The keypoints' patches (compact; the GEMM factor is built from them per comparison),
     /// in memory or set aside on disk ([`Self::set_aside`]).
     patches: Patches,
@@ -237,7 +237,7 @@ impl PreparedLandmark {
                 shape.coverage(&observed, grid, r, c)
             });
             let patches = CandidatePatches::new(shape, &compared, &observed, grid, &keypoints);
-            (keypoints, patches)
+            (keypoints.iter().map(KeptCell::from).collect(), patches)
         };
         let ((keypoints, patches), coarse) = if query {
             rayon::join(keypoints_and_patches, signatures)
@@ -313,7 +313,7 @@ impl PreparedLandmark {
             Patches::Disk(_) => 0,
         };
         let bits = 8 * self.observed_bits.len();
-        let keypoints = self.keypoints.len() * std::mem::size_of::<Keypoint>();
+        let keypoints = self.keypoints.len() * std::mem::size_of::<KeptCell>();
         let coarse = self.coarse.heap_bytes();
         landmark + patches + bits + keypoints + coarse
     }
@@ -728,15 +728,14 @@ fn keypoint_correspondences(
     dist.mutual_nearest()
         .iter()
         .map(|&(i, j)| {
-            let kq = &q.keypoints[i];
+            let (row, col) = q.keypoints[i].cell();
             let query = match heading {
-                Heading::Forward => (kq.row, kq.col),
-                Heading::Reversed => heading::flip_cell(kq.row, kq.col, rows, cols),
+                Heading::Forward => (row, col),
+                Heading::Reversed => heading::flip_cell(row, col, rows, cols),
             };
-            let kc = &c.keypoints[j];
             Correspondence {
                 query,
-                candidate: (kc.row, kc.col),
+                candidate: c.keypoints[j].cell(),
             }
         })
         .collect()

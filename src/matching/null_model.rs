@@ -48,6 +48,8 @@
 //! loop selection (`decod_rs.selection`): a 12 m correction after 40 m of travel is not
 //! consistent with the odometry.
 
+use super::keypoints::AtCell;
+#[cfg(test)]
 use super::keypoints::Keypoint;
 use super::{Heading, heading::flip_cell};
 use crate::config::MatchingConfig;
@@ -122,9 +124,9 @@ fn wrapped(d: isize, cols: usize) -> isize {
 
 /// The chance that a pair of different surfaces with these keypoints and `matches` mutual
 /// matches verifies with `inliers` or more (module docs). 1 when nothing was verified.
-pub fn pair_p_value(
-    query: &[Keypoint],
-    candidate: &[Keypoint],
+pub fn pair_p_value<K: AtCell>(
+    query: &[K],
+    candidate: &[K],
     heading: Heading,
     grid: (usize, usize),
     matches: usize,
@@ -148,13 +150,15 @@ pub fn pair_p_value(
     let (w, h) = ((2 * ep + 1) as usize, (2 * ez + 1) as usize);
     let mut hist = vec![0.0f64; w * h];
     for kq in query {
+        let (r, c) = kq.cell();
         let (qr, qc) = match heading {
-            Heading::Forward => (kq.row, kq.col),
-            Heading::Reversed => flip_cell(kq.row, kq.col, rows, cols),
+            Heading::Forward => (r, c),
+            Heading::Reversed => flip_cell(r, c, rows, cols),
         };
         for kc in candidate {
-            let dz = kc.row as isize - qr as isize;
-            let dp = wrapped(kc.col as isize - qc as isize, cols);
+            let (cr, cc) = kc.cell();
+            let dz = cr as isize - qr as isize;
+            let dp = wrapped(cc as isize - qc as isize, cols);
             if dz.abs() <= ez && dp.abs() <= ep {
                 hist[((dz + ez) as usize) * w + (dp + ep) as usize] += 1.0;
             }
@@ -207,6 +211,7 @@ pub fn family_wise(p_pair: f64, candidates: usize) -> f64 {
 mod tests {
     use super::*;
     use crate::config::DecodConfig;
+    use crate::matching::keypoints::KeptCell;
 
     fn kp(row: usize, col: usize) -> Keypoint {
         Keypoint {
@@ -356,6 +361,14 @@ mod tests {
         // More inliers are always less likely by chance.
         let p9 = pair_p_value(&spread, &spread, Heading::Forward, grid, 30, 9, &cfg);
         assert!(p9 < p_spread);
+        // A view keeps its keypoints' cells only: the same chance, under both headings.
+        let kept: Vec<KeptCell> = spread.iter().map(KeptCell::from).collect();
+        for heading in Heading::BOTH {
+            assert_eq!(
+                pair_p_value(&kept, &kept, heading, grid, 30, 8, &cfg).to_bits(),
+                pair_p_value(&spread, &spread, heading, grid, 30, 8, &cfg).to_bits()
+            );
+        }
     }
 
     #[test]
