@@ -103,9 +103,15 @@ impl Spill {
         landmark.validate()?;
         let mut bytes = Vec::new();
         encode_landmark(&mut bytes, landmark, &self.path)?;
+        self.put_record(landmark, &bytes)
+    }
+
+    /// [`Self::put`] for a landmark already validated whose record is `record` (a survey's,
+    /// read from its file: the same format), written as it is.
+    pub(crate) fn put_record(self: &Arc<Self>, landmark: &Landmark, record: &[u8]) -> Result<Held> {
         Ok(Held::Disk(Arc::new(OnDisk {
             head: Arc::new(landmark.head()),
-            record: self.append(&bytes)?,
+            record: self.append(record)?,
         })))
     }
 

@@ -220,7 +220,7 @@ impl Survey {
     /// Reads a survey written by [`Self::write`]; another format version, a foreign file or
     /// a truncated or inconsistent one is a [`DecodError::Database`] saying which.
     pub fn read(path: &Path) -> Result<Self> {
-        let (header, landmarks) = read_records(path, Ok)?;
+        let (header, landmarks) = read_records(path, |l, _| Ok(l))?;
         Ok(Self { header, landmarks })
     }
 
@@ -228,18 +228,19 @@ impl Survey {
     /// ([`Spill::put`]): the survey's landmarks then hold their heads in memory, not their
     /// cells (a re-inspection's survey is a whole earlier run's landmarks, 29 KB each).
     pub fn read_into(path: &Path, spill: &Arc<Spill>) -> Result<(Value, Vec<Held>)> {
-        read_records(path, |l| spill.put(&l))
+        read_records(path, |l, record| spill.put_record(&l, record))
     }
 }
 
 /// Reads the survey at `path` (module docs): checks its magic, version, header and sizes
 /// (the landmark count bounded by the file's size before anything is allocated for it) and
-/// hands each landmark, validated, to `each`, in order. The header and what `each` made.
+/// hands each landmark, validated, to `each` with its record's bytes, in order. The header
+/// and what `each` made.
 /// The file is read a record at a time (a record's length follows from the counts at its
 /// start), so a survey put into a spill never has its whole file in memory.
 fn read_records<T>(
     path: &Path,
-    mut each: impl FnMut(Landmark) -> Result<T>,
+    mut each: impl FnMut(Landmark, &[u8]) -> Result<T>,
 ) -> Result<(Value, Vec<T>)> {
     let io = |source| DecodError::Io {
         path: path.to_path_buf(),
@@ -270,11 +271,11 @@ fn read_records<T>(
     }
     let mut out = Vec::with_capacity(n as usize);
     for k in 0..n as usize {
-        let l = input
+        let (l, record) = input
             .landmark()
-            .and_then(|l| l.validate().map(|()| l))
+            .and_then(|(l, record)| l.validate().map(|()| (l, record)))
             .map_err(|e| err(path, format!("landmark {k}: {e}")))?;
-        out.push(each(l)?);
+        out.push(each(l, &record)?);
     }
     if input.left != 0 {
         return Err(err(
@@ -312,15 +313,15 @@ impl<R: Read> Records<'_, R> {
         Ok(buf)
     }
 
-    /// The next landmark record: its fixed part, whose counts give the rest's length.
-    fn landmark(&mut self) -> Result<Landmark> {
+    /// The next landmark and its record: the fixed part, whose counts give the rest's length.
+    fn landmark(&mut self) -> Result<(Landmark, Vec<u8>)> {
         let mut record = self.take(MIN_RECORD_BYTES)?;
         let rest = Reader::new(&record, self.path).rest_of_record()?;
         record.extend(self.take(rest)?);
         let mut r = Reader::new(&record, self.path);
         let landmark = r.landmark()?;
         match r.left() {
-            0 => Ok(landmark),
+            0 => Ok((landmark, record)),
             n => Err(err(self.path, format!("{n} bytes of a record left unread"))),
         }
     }
