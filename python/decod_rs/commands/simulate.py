@@ -134,6 +134,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--livox", action="store_true", help="also /livox/lidar (livox_ros_driver2 CustomMsg)"
     )
     p.add_argument("--ros1", action="store_true", help="also write DIR/log.bag (ROS 1)")
+    p.add_argument(
+        "--sweep",
+        action="store_true",
+        help="each point measured at its own time within the 0.1 s scan, in the sensor's frame "
+        "then, with a per-point t field (Ouster's, ns), as a real LiDAR moving at speed",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing DIR/log")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -225,6 +231,7 @@ def run(args: argparse.Namespace) -> int:
         ros1=args.ros1,
         progress=not args.quiet,
         overwrite=args.force,
+        sweep=args.sweep,
     )
     mb = res.log_size_bytes / 1e6
     print(f"scene          {res.scene} (sensor {res.sensor}, seed {args.seed})")

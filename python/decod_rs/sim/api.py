@@ -26,6 +26,7 @@ from decod_rs.sim.raycast import cast
 from decod_rs.sim.scenes import SceneDefaults, build_scene, defaults_for, scene_params
 from decod_rs.sim.sensors import SCAN_PERIOD_S, SensorSpec, measure, ray_directions, sensor_spec
 from decod_rs.sim.surface import Scene
+from decod_rs.sim.sweep import swept_points
 from decod_rs.sim.trajectory import Trajectory, TrajectorySpec, so3_log
 from decod_rs.sim.writer import (
     TOPIC_IMU,
@@ -84,8 +85,11 @@ class Simulation:
         sensor_height_m: float | None = None,
         backups: Sequence[tuple[float, float, float]] = (),
         standstill_s: tuple[float, float] | None = None,
+        sweep: bool = False,
     ) -> None:
         self.scene_overrides = dict(scene_overrides or {})
+        #: Each point measured at its own time within the scan (:mod:`decod_rs.sim.sweep`).
+        self.sweep = bool(sweep)
         # The world (scene geometry) may come from another seed than the run (noise, drift,
         # trajectory wobble): two inspections of one pipe (issue 12).
         self.world_seed = int(seed if world_seed is None else world_seed)
@@ -141,6 +145,8 @@ class Simulation:
         # points written are in the bent one (:mod:`decod_rs.sim.bend`).
         radius = check_bend_radius(curve_radius_m, self.scene.radius_m)
         self.bend: Bend | None = None if radius is None else Bend(radius)
+        if self.sweep and self.bend is not None:
+            raise ValueError("sweep: not simulated in a curving corridor (curve_radius_m)")
         self.straight_poses = self.traj.poses(self.t_s)
         self.gt_poses = (
             self.straight_poses if self.bend is None else self.bend.poses(self.straight_poses)
@@ -183,27 +189,44 @@ class Simulation:
 
     def scan(self, k: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Scan ``k``: points ``(M, 3)`` float32 in the body frame and intensities ``(M,)``."""
+        pts, inten, _ = self.scan_with_times(k)
+        return pts, inten
+
+    def scan_with_times(
+        self, k: int
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.uint32] | None]:
+        """Scan ``k`` as :meth:`scan`, and with ``sweep`` each point's time since the scan
+        stamp (ns; its frame is the body's at that time, :mod:`decod_rs.sim.sweep`)."""
+        dirs_body = ray_directions(self.sensor, k)
+        rng = np.random.default_rng([self.seed, 5, k])
+
+        def measure_from(
+            _rot: F64, origin: F64, dirs_world: F64
+        ) -> tuple[F64, NDArray[np.float32]]:
+            hits = cast(self.scene, origin, dirs_world)
+            pts, inten, _ = measure(
+                self.sensor,
+                hits,
+                origin,
+                self._reflectivity,
+                self.range_noise_m,
+                rng,
+                self._return_fraction,
+            )
+            return pts, inten
+
+        if self.sweep:
+            return swept_points(self.straight_poses, k, dirs_body, self.sensor, measure_from)
         pose = self.straight_poses[k]
         rot, origin = pose[:3, :3], pose[:3, 3]
-        dirs_body = ray_directions(self.sensor, k)
-        hits = cast(self.scene, origin, dirs_body @ rot.T)
-        rng = np.random.default_rng([self.seed, 5, k])
-        pts_w, inten, _ = measure(
-            self.sensor,
-            hits,
-            origin,
-            self._reflectivity,
-            self.range_noise_m,
-            rng,
-            self._return_fraction,
-        )
+        pts_w, inten = measure_from(rot, origin, dirs_body @ rot.T)
         if self.bend is not None:
             pts_w = self.bend.points(pts_w)
             rot, origin = self.gt_poses[k, :3, :3], self.gt_poses[k, :3, 3]
             seen = self.bend.in_sight(origin, pts_w, self.scene.radius_m, self.scene.floor_z_m)
             pts_w, inten = pts_w[seen], inten[seen]
         pts_b = (pts_w - origin) @ rot
-        return pts_b.astype(np.float32), inten
+        return pts_b.astype(np.float32), inten, None
 
     def odom_twist(self) -> tuple[F64, F64]:
         """Body-frame linear and angular velocity of the odometry at every scan (finite
@@ -236,6 +259,7 @@ class Simulation:
             "world_seed": self.world_seed,
             "distinctiveness": self.distinctiveness,
             "identical_joints": self.identical_joints,
+            "sweep": self.sweep,
             "axis": {
                 "frame": "world",
                 "origin_m": [0.0, 0.0, 0.0],
@@ -483,10 +507,10 @@ def _write_stream(
         stamp = int(sim.stamps_ns[k])
         imu_until(stamp)
         t0 = time.perf_counter()
-        pts, inten = sim.scan(k)
+        pts, inten, times = sim.scan_with_times(k)
         stream.t_scans += time.perf_counter() - t0
         stream.n_points += pts.shape[0]
-        w.points(stamp, pts, inten)
+        w.points(stamp, pts, inten, times)
         if kiss is not None:
             t1 = time.perf_counter()
             stream.odom_poses[k] = kiss.step(pts)
@@ -694,6 +718,7 @@ def simulate(
     ros1: bool = False,
     progress: bool = True,
     overwrite: bool = False,
+    sweep: bool = False,
 ) -> SimResult:
     """Simulate ``scene`` and write ``out_dir/log/`` (rosbag2, MCAP storage: ``/points``,
     ``/odom``, ``/imu``), ``out_dir/gt.tum``, ``out_dir/odom.tum`` and ``out_dir/joints.json``.
@@ -728,10 +753,15 @@ def simulate(
     above a tunnel's floor): a crawler low in a large pipe, a small robot in a tunnel.
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
+    ``sweep=True``: each point measured at its own time within its scan, in the sensor's frame
+    at that time, with Ouster's per-point ``t`` (:mod:`decod_rs.sim.sweep`); not with
+    ``livox`` or a curve.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
     """
     if odometry not in ("drift", "kiss-icp"):
         raise ValueError(f"odometry must be 'drift' or 'kiss-icp', got {odometry!r}")
+    if sweep and livox:
+        raise ValueError("sweep: not written into livox custom messages (livox=True)")
     _mount(mount_deg)  # refused before anything is written
     t_start = time.perf_counter()
     out = Path(out_dir)
@@ -760,6 +790,7 @@ def simulate(
         sensor_height_m=sensor_height_m,
         backups=backups,
         standstill_s=standstill_s,
+        sweep=sweep,
     )
     if overwrite:
         # Every argument checked (the Simulation refuses a bad one): only now is an earlier

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from decod_rs.sim.clouds import cloud_layout
 from decod_rs.sim.fields import F64
 from decod_rs.sim.trajectory import quat_xyzw
 
@@ -153,24 +154,25 @@ class Ros1Writer:
     def _write(self, topic: str, stamp_ns: int, msg: Any) -> None:
         self._w.write(self._c[topic], stamp_ns, self.ts.serialize_ros1(msg, msg.__msgtype__))
 
-    def points(self, stamp_ns: int, xyz: NDArray[np.float32], inten: NDArray[np.float32]) -> None:
+    def points(
+        self,
+        stamp_ns: int,
+        xyz: NDArray[np.float32],
+        inten: NDArray[np.float32],
+        times_ns: NDArray[np.uint32] | None = None,
+    ) -> None:
         t = self.ts.types
         n = xyz.shape[0]
-        buf = np.empty((n, 4), dtype="<f4")
-        buf[:, :3] = xyz
-        buf[:, 3] = inten
-        fld = t["sensor_msgs/msg/PointField"]
-        fields = [fld(name=k, offset=4 * i, datatype=7, count=1) for i, k in enumerate("xyz")]
-        fields.append(fld(name="intensity", offset=12, datatype=7, count=1))
+        fields, step, data = cloud_layout(t["sensor_msgs/msg/PointField"], xyz, inten, times_ns)
         msg = t["sensor_msgs/msg/PointCloud2"](
             header=self._header(stamp_ns, "body", "/points"),
             height=1,
             width=n,
             fields=fields,
             is_bigendian=False,
-            point_step=16,
-            row_step=16 * n,
-            data=buf.reshape(-1).view(np.uint8),
+            point_step=step,
+            row_step=step * n,
+            data=data,
             is_dense=True,
         )
         self._write("/points", stamp_ns, msg)

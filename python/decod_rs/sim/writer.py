@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from decod_rs.sim.clouds import cloud_layout
 from decod_rs.sim.fields import F64
 from decod_rs.sim.livox import CUSTOM_MSG, TOPIC_LIVOX, custom_msg_cdr, livox_types
 from decod_rs.sim.trajectory import quat_xyzw
@@ -23,8 +24,6 @@ TOPIC_ODOM = "/odom"
 TOPIC_IMU = "/imu"
 FRAME_BODY = "body"
 FRAME_ODOM = "odom"
-POINT_STEP = 16  # x, y, z, intensity: float32 each
-FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
 
 _TS = get_typestore(Stores.ROS2_HUMBLE)
 _T = _TS.types
@@ -41,9 +40,6 @@ _TWIST = _T["geometry_msgs/msg/Twist"]
 _POINT = _T["geometry_msgs/msg/Point"]
 _QUAT = _T["geometry_msgs/msg/Quaternion"]
 _VEC3 = _T["geometry_msgs/msg/Vector3"]
-
-_FIELDS = [_FIELD(name=n, offset=4 * i, datatype=FLOAT32, count=1) for i, n in enumerate("xyz")]
-_FIELDS.append(_FIELD(name="intensity", offset=12, datatype=FLOAT32, count=1))
 
 
 def _header(stamp_ns: int, frame: str) -> Any:
@@ -87,21 +83,23 @@ class LogWriter:
         self._writer.close()
 
     def points(
-        self, stamp_ns: int, xyz: NDArray[np.float32], intensity: NDArray[np.float32]
+        self,
+        stamp_ns: int,
+        xyz: NDArray[np.float32],
+        intensity: NDArray[np.float32],
+        times_ns: NDArray[np.uint32] | None = None,
     ) -> None:
         n = xyz.shape[0]
-        buf = np.empty((n, 4), dtype="<f4")
-        buf[:, :3] = xyz
-        buf[:, 3] = intensity
+        fields, step, data = cloud_layout(_FIELD, xyz, intensity, times_ns)
         msg = _CLOUD(
             header=_header(stamp_ns, FRAME_BODY),
             height=1,
             width=n,
-            fields=_FIELDS,
+            fields=fields,
             is_bigendian=False,
-            point_step=POINT_STEP,
-            row_step=POINT_STEP * n,
-            data=buf.reshape(-1).view(np.uint8),
+            point_step=step,
+            row_step=step * n,
+            data=data,
             is_dense=True,
         )
         self._write(self._c_points, stamp_ns, msg, TOPIC_POINTS)
