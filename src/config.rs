@@ -73,6 +73,16 @@ pub struct SubmapConfig {
     /// stored config: 1, every point.
     #[serde(default = "one_point")]
     pub point_stride: usize,
+    /// Each point of a scan whose cloud carries per-point times (Ouster `t`, Velodyne
+    /// `time`, Hesai and Livox `timestamp`, Livox `offset_time`) is moved to the body's pose
+    /// at the scan stamp by the motion of the trajectory the submap is stitched on
+    /// (`crate::deskew`): a spinning sensor's turn takes 0.1 s, 0.13 m of travel along the
+    /// axis at 1.3 m/s. On a simulated 6 m shield with 64 beams, a turn and 1.3 m/s (seed 613,
+    /// `decod simulate --sweep`) 187 -> 269 loops, RMSE 0.063 -> 0.016 m, as the same log
+    /// scanned from one pose per scan. Clouds without times are as before. Absent from a
+    /// stored config: false (a survey's descriptors were built without it).
+    #[serde(default)]
+    pub deskew: bool,
     /// `decod run`: when the odometry jitters from scan to scan by more than a quarter of a
     /// voxel (the RMS of its positions about a quadratic in time fitted over each submap's
     /// span; `jitter` module of the Python package), the run's odometry is that fit: submaps
@@ -975,6 +985,7 @@ fn tunnel_submap() -> SubmapConfig {
         rebuild_on_correction: true,
         odometry_gap_periods: 5.0,
         point_stride: 1,
+        deskew: true,
         smooth_jittery_odometry: true,
         max_travel_m: 0.0,
     }
@@ -1188,6 +1199,10 @@ mod tests {
         let (removed, c) = stored_without(DecodConfig::tunnel(), "submap", "point_stride");
         assert!(removed.is_some());
         assert_eq!(c.map(|c| c.submap.point_stride), Some(1));
+        // A config stored before deskewing (a survey's) builds its submaps as they were.
+        let (removed, c) = stored_without(DecodConfig::tunnel(), "submap", "deskew");
+        assert_eq!(removed, Some(serde_json::Value::Bool(true)));
+        assert_eq!(c.map(|c| c.submap.deskew), Some(false));
     }
 
     /// `cfg` as JSON without `section.field` (a config stored before the field): the value

@@ -17,6 +17,7 @@ pub mod config;
 pub mod contour;
 pub mod corridor_end;
 pub mod descriptor;
+pub mod deskew;
 pub mod error;
 pub mod extract;
 pub mod geometry;

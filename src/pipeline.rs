@@ -113,6 +113,7 @@ impl LogProcessor {
             path,
             &ScanStreamOptions {
                 gap_periods: config.submap.odometry_gap_periods,
+                deskew: config.submap.deskew,
                 ..options.clone()
             },
         )?;

@@ -335,7 +335,13 @@ def test_livox_custom_msg_cdr(tmp_path, pkg):
         rsvd=np.zeros(3, dtype=np.uint8),
         points=[
             T[f"{pkg}/msg/CustomPoint"](
-                offset_time=k * 1000, x=p[0], y=p[1], z=p[2], reflectivity=9, tag=0, line=k % 4
+                offset_time=k * 10_000_000,
+                x=p[0],
+                y=p[1],
+                z=p[2],
+                reflectivity=9,
+                tag=0,
+                line=k % 4,
             )
             for k, p in enumerate(pts)
         ],
@@ -344,9 +350,18 @@ def test_livox_custom_msg_cdr(tmp_path, pkg):
     log = write_ros2(
         tmp_path / "bag", store, topics, [*odometry_messages(store), ("/livox/lidar", 0.75, msg)]
     )
-    (scan,) = list(decod_rs.read_log(log))
+    (scan,) = list(decod_rs.read_log(log, deskew=False))
     np.testing.assert_array_equal(scan.points, pts)
     np.testing.assert_allclose(scan.pose, pose_at(0.75), atol=1e-9)
+    # Each point's time is timebase + offset_time (10k ms after the stamp), in the body frame
+    # of that moment: deskewed, it is where the stamp's pose sees it. The odometry drives
+    # 1.1 m/s and turns 0.3 rad/s, constant in the world frame, where deskewing takes the
+    # body's velocity constant: within a few mm over 60 ms.
+    (moved,) = list(decod_rs.read_log(log))
+    seen_from = [np.linalg.inv(pose_at(0.75)) @ pose_at(0.75 + 0.01 * k) for k in range(7)]
+    truth = np.array([m[:3, :3] @ q + m[:3, 3] for m, q in zip(seen_from, pts, strict=True)])
+    np.testing.assert_allclose(moved.points, truth, atol=3e-3)
+    assert np.abs(pts - truth).max() > 0.05  # what the correction had to move
 
 
 # --- ROS 1 encoding through the mcap package -------------------------------------------

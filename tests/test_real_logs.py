@@ -448,6 +448,9 @@ def test_unusable_clouds_are_counted_per_topic(tmp_path: Path) -> None:
         "empty": 1,
         "non_finite_points": 6,
         "out_of_order": 0,
+        # Velodyne's `time` read on the three clouds with points (all 0 here: no change).
+        "deskewed": 3,
+        "times_unused": 0,
     }
     (error,) = health.message_errors
     assert str(log) in error and "[topic /velodyne_points]" in error

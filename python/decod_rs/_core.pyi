@@ -199,7 +199,7 @@ _HealthRow = tuple[
     list[tuple[float, float, str]],
     list[float],
     list[tuple[float, float]],
-    tuple[int, int, int, int, int, int],
+    tuple[int, int, int, int, int, int, int, int],
     list[str],
 ]
 
@@ -229,6 +229,7 @@ def open_scan_stream(
     odom_tum: str | None = None,
     imu: str | None = None,
     gap_periods: float = 5.0,
+    deskew: bool = True,
 ) -> _ScanReader: ...
 def inspect_log(
     path: str,

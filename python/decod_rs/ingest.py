@@ -92,7 +92,9 @@ class StreamHealth:
         skipped_in_gaps: stamps of the clouds left out because they fall inside a gap.
         out_of_order: ``(stamp, previous)`` of clouds stamped at or before the scan before.
         clouds: counts on the points topic: ``messages, undecodable, zero_size, empty,
-            non_finite_points, out_of_order``.
+            non_finite_points, out_of_order``, and ``deskewed`` (scans moved to their stamp's
+            pose by their points' times) and ``times_unused`` (scans with a time field that
+            could not be used so: ``submap.deskew``).
         message_errors: undecodable messages, each naming file, topic and log time.
     """
 
@@ -116,7 +118,13 @@ class StreamHealth:
             gaps=[(float(a), float(b), str(k)) for a, b, k in gaps],
             skipped_in_gaps=[float(t) for t in in_gaps],
             out_of_order=[(float(a), float(b)) for a, b in order],
-            clouds=dict(zip((*names, "out_of_order"), (int(c) for c in counts), strict=True)),
+            clouds=dict(
+                zip(
+                    (*names, "out_of_order", "deskewed", "times_unused"),
+                    (int(c) for c in counts),
+                    strict=True,
+                )
+            ),
             message_errors=list(errors),
             outside_odometry=[float(t) for t in outside_odometry],
         )

@@ -114,6 +114,7 @@ def read_log(
     odom_tum: PathLike | None = None,
     imu: str | None = None,
     gap_periods: float = 5.0,
+    deskew: bool = True,
 ) -> ScanReader:
     """Streams the scans of a log (``.mcap``, ROS 1 ``.bag``, ``.db3`` or a rosbag2
     directory) with their poses.
@@ -128,6 +129,9 @@ def read_log(
             (:func:`find_imu_topic` finds the unique one).
         gap_periods: odometry intervals longer than this many median periods are gaps: no
             pose is interpolated inside (``submap.odometry_gap_periods``; 0: no gaps).
+        deskew: each point moved to the pose at its scan's stamp by its own time, where the
+            clouds carry per-point times (``submap.deskew``; ``decod_rs.deskew`` in the Rust
+            crate); False: the points as the driver wrote them.
 
     Raises:
         TopicError: a topic is missing or ambiguous (the message lists candidates).
@@ -136,7 +140,7 @@ def read_log(
         FileNotFoundError: the log or TUM file does not exist.
     """
     tum = None if odom_tum is None else os.fspath(odom_tum)
-    inner = _core.open_scan_stream(os.fspath(path), points, odom, tum, imu, gap_periods)
+    inner = _core.open_scan_stream(os.fspath(path), points, odom, tum, imu, gap_periods, deskew)
     return ScanReader(inner)
 
 

@@ -2,7 +2,7 @@
 //! (`00 01` little-endian, `00 00` big-endian, then two option bytes); alignment of each
 //! primitive is relative to the end of that header, i.e. to byte 4 of the message.
 
-use super::wire::{Header, WireReader, WireResult, stamp_seconds};
+use super::wire::{Header, WireReader, WireResult, stamp_nanoseconds, stamp_seconds};
 
 /// Bytes of the CDR encapsulation header.
 const ENCAPSULATION_BYTES: usize = 4;
@@ -82,6 +82,7 @@ impl<'a> WireReader<'a> for CdrReader<'a> {
         let frame_id = self.string()?;
         Ok(Header {
             stamp: stamp_seconds(i64::from(sec), nanosec),
+            stamp_ns: stamp_nanoseconds(i64::from(sec), nanosec),
             frame_id,
         })
     }

@@ -7,6 +7,7 @@
 
 use super::pointcloud::Cloud;
 use super::wire::{WireReader, WireResult};
+use crate::deskew::TimeKind;
 
 /// Smallest serialised CustomPoint (ROS 1, packed).
 const MIN_POINT_BYTES: usize = 19;
@@ -15,19 +16,26 @@ const MIN_POINT_BYTES: usize = 19;
 /// dropped and counted). The per-point `offset_time` (ns from `timebase`) is the time field.
 pub fn decode_custom_msg<'a, R: WireReader<'a>>(r: &mut R) -> WireResult<Cloud> {
     let header = r.header()?;
-    let _timebase = r.u64()?;
+    let timebase = r.u64()?;
     let _point_num = r.u32()?;
     let _lidar_id = r.u8()?;
     r.bytes(3)?;
     let n = r.seq_len(MIN_POINT_BYTES)?;
     let mut points = Vec::with_capacity(n);
+    let mut times = Vec::with_capacity(n);
     let mut dropped = 0usize;
+    // A point's time since the header stamp, ns: `timebase` (ns) is the first point's time.
+    let base = i64::try_from(timebase)
+        .ok()
+        .and_then(|t| t.checked_sub(header.stamp_ns))
+        .map_or(f64::INFINITY, |d| d as f64);
     for _ in 0..n {
-        let _offset_time = r.u32()?;
+        let offset_time = r.u32()?;
         let p = [r.f32()?, r.f32()?, r.f32()?];
         r.bytes(3)?;
         if p.iter().all(|v| v.is_finite()) {
             points.push(p);
+            times.push(base + f64::from(offset_time));
         } else {
             dropped += 1;
         }
@@ -37,6 +45,8 @@ pub fn decode_custom_msg<'a, R: WireReader<'a>>(r: &mut R) -> WireResult<Cloud> 
         points,
         dropped_non_finite: dropped,
         time_field: Some("offset_time".into()),
+        times,
+        time_kind: Some(TimeKind::Nanoseconds),
         has_intensity: true,
     })
 }

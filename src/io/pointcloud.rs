@@ -9,6 +9,7 @@
 //! points/s for the generic per-field path (x y z float64 behind a time field).
 
 use super::wire::{Header, WireReader, WireResult};
+use crate::deskew::TimeKind;
 
 /// PointField datatypes (sensor_msgs/PointField constants).
 mod datatype {
@@ -61,6 +62,11 @@ pub struct Cloud {
     pub dropped_non_finite: usize,
     /// Name of the per-point time field, when the cloud has one.
     pub time_field: Option<String>,
+    /// That field's values, one per point in [`Self::points`] (empty when the cloud has no
+    /// time field of a numeric type), as written: [`Self::time_kind`] says how they read.
+    pub times: Vec<f64>,
+    /// How [`Self::times`] read (`crate::deskew::relative_seconds`).
+    pub time_kind: Option<TimeKind>,
     /// Whether the cloud has an intensity (or reflectivity) field.
     pub has_intensity: bool,
 }
@@ -157,6 +163,55 @@ fn find_coord(meta: &CloudMeta, name: &str) -> WireResult<Coord> {
     })
 }
 
+/// The cloud's time field (the first of [`TIME_FIELD_NAMES`] it has) where its type is one
+/// a time can be read from and it lies inside a point: unsigned integers are nanoseconds,
+/// floats seconds ([`TimeKind`]); any other is left unread.
+fn find_time(meta: &CloudMeta) -> Option<(Coord, TimeKind)> {
+    let field = TIME_FIELD_NAMES
+        .iter()
+        .find_map(|name| meta.fields.iter().find(|f| f.name == *name))?;
+    let kind = match field.datatype {
+        datatype::UINT32 => TimeKind::Nanoseconds,
+        datatype::FLOAT32 | datatype::FLOAT64 => TimeKind::Seconds,
+        _ => return None,
+    };
+    let size = datatype_size(field.datatype)?;
+    (field.offset as usize + size <= meta.point_step as usize).then_some((
+        Coord {
+            offset: field.offset as usize,
+            datatype: field.datatype,
+        },
+        kind,
+    ))
+}
+
+/// A point's time as written (offsets checked against point_step by [`find_time`]).
+#[inline]
+fn read_time(point: &[u8], c: Coord, big: bool) -> f64 {
+    let four = |o: usize| [point[o], point[o + 1], point[o + 2], point[o + 3]];
+    match c.datatype {
+        datatype::UINT32 => f64::from(if big {
+            u32::from_be_bytes(four(c.offset))
+        } else {
+            u32::from_le_bytes(four(c.offset))
+        }),
+        datatype::FLOAT32 => f64::from(if big {
+            f32::from_be_bytes(four(c.offset))
+        } else {
+            f32::from_le_bytes(four(c.offset))
+        }),
+        _ => {
+            let mut b = [0u8; 8];
+            b.copy_from_slice(&point[c.offset..c.offset + 8]);
+            if big {
+                f64::from_be_bytes(b)
+            } else {
+                f64::from_le_bytes(b)
+            }
+        }
+    }
+}
+
 #[inline]
 fn read_coord(point: &[u8], c: Coord, big: bool) -> f32 {
     // Offsets were checked against point_step, and `point` is point_step long.
@@ -235,6 +290,8 @@ pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
         && y.offset == 4
         && z.offset == 8;
     let mut points = Vec::with_capacity(width * height);
+    let time = find_time(&meta);
+    let mut times = Vec::with_capacity(if time.is_some() { width * height } else { 0 });
     let mut dropped = 0usize;
     // No point (width 0): no row is read, whatever height and row_step say (found by
     // examples/fuzz_logs.rs: height 3, width 0 indexed past the data).
@@ -251,6 +308,9 @@ pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
                 ];
                 if v[0].is_finite() && v[1].is_finite() && v[2].is_finite() {
                     points.push(v);
+                    if let Some((c, _)) = time {
+                        times.push(read_time(p, c, big));
+                    }
                 } else {
                     dropped += 1;
                 }
@@ -264,6 +324,9 @@ pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
                 ];
                 if v.iter().all(|c| c.is_finite()) {
                     points.push(v);
+                    if let Some((c, _)) = time {
+                        times.push(read_time(p, c, big));
+                    }
                 } else {
                     dropped += 1;
                 }
@@ -284,6 +347,8 @@ pub fn decode_points(meta: CloudMeta, data: &[u8]) -> WireResult<Cloud> {
         points,
         dropped_non_finite: dropped,
         time_field,
+        times,
+        time_kind: time.map(|(_, kind)| kind),
         has_intensity,
     })
 }
@@ -306,6 +371,7 @@ mod tests {
         CloudMeta {
             header: Header {
                 stamp: 1.0,
+                stamp_ns: 1_000_000_000,
                 frame_id: "lidar".into(),
             },
             height,

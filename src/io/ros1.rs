@@ -1,7 +1,7 @@
 //! ROS 1 byte reader: packed little-endian, no alignment, strings without terminator,
 //! `Header` = `seq: uint32, stamp: (sec: uint32, nsec: uint32), frame_id: string`.
 
-use super::wire::{Header, WireReader, WireResult, stamp_seconds};
+use super::wire::{Header, WireReader, WireResult, stamp_nanoseconds, stamp_seconds};
 
 /// Cursor over one ROS 1-serialised message.
 pub struct Ros1Reader<'a> {
@@ -53,6 +53,7 @@ impl<'a> WireReader<'a> for Ros1Reader<'a> {
         let frame_id = self.string()?;
         Ok(Header {
             stamp: stamp_seconds(i64::from(sec), nsec),
+            stamp_ns: stamp_nanoseconds(i64::from(sec), nsec),
             frame_id,
         })
     }

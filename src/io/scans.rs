@@ -16,9 +16,11 @@ use super::imu::{ImuSample, ImuSeries};
 use super::log::{TopicInfo, log_error, log_files};
 use super::messages::{MessageKind, decode_cloud, decode_imu_message, decode_poses};
 use super::odometry::{DEFAULT_GAP_PERIODS, OdometryGap, PoseSample, Trajectory};
+use super::pointcloud::Cloud;
 use super::source::{ChannelMeta, LogFault, MessageSource, PayloadFilter};
 use super::tum::read_tum;
 use super::wire::Encoding;
+use crate::deskew::{MOTION_SPAN_S, Motion, deskew, relative_seconds};
 use crate::error::{DecodError, Result};
 use crate::geometry::Pose;
 use crate::scan::Scan;
@@ -48,6 +50,9 @@ pub struct ScanStreamOptions {
     /// Odometry intervals longer than this many median periods are gaps, not interpolated
     /// (`submap.odometry_gap_periods`; <= 0 turns gap detection off).
     pub gap_periods: f64,
+    /// Move each point to the stamp's pose by its own time (`submap.deskew`,
+    /// [`crate::deskew`]) where the clouds carry per-point times.
+    pub deskew: bool,
 }
 
 impl Default for ScanStreamOptions {
@@ -58,6 +63,7 @@ impl Default for ScanStreamOptions {
             imu_topic: None,
             imu_samples: None,
             gap_periods: DEFAULT_GAP_PERIODS,
+            deskew: true,
         }
     }
 }
@@ -77,6 +83,12 @@ pub struct CloudStats {
     pub non_finite_points: u64,
     /// Clouds stamped at or before the previous scan (left out, never reordered).
     pub out_of_order: u64,
+    /// Scans whose points were moved to the stamp's pose by their own times
+    /// ([`crate::deskew`]).
+    pub deskewed: u64,
+    /// Scans with a time field whose values are not times within one scan, or without the
+    /// trajectory around them: taken as seen from the stamp's pose.
+    pub times_unused: u64,
 }
 
 /// Most message errors kept per stream (the rest are counted in [`CloudStats`]).
@@ -192,6 +204,7 @@ pub struct ScanStream {
     message_errors: Vec<String>,
     dropped_non_finite: usize,
     previous_stamp: Option<f64>,
+    deskew: bool,
     finished: bool,
 }
 
@@ -267,6 +280,7 @@ impl ScanStream {
             message_errors,
             dropped_non_finite: 0,
             previous_stamp: None,
+            deskew: opts.deskew,
             finished: false,
         })
     }
@@ -594,6 +608,27 @@ impl ScanStream {
         err
     }
 
+    /// `cloud`'s points moved to the pose at its stamp by their own times, with the motion of
+    /// the trajectory over the next [`MOTION_SPAN_S`] (the previous, at its end); counted in
+    /// [`CloudStats`] either way.
+    fn deskewed(&mut self, cloud: &mut Cloud, at_stamp: &Pose) {
+        let stamp = cloud.header.stamp;
+        let motion = [MOTION_SPAN_S, -MOTION_SPAN_S].iter().find_map(|&dt| {
+            let other = self.trajectory.at(stamp + dt)?;
+            Motion::between(at_stamp, &other, dt)
+        });
+        let times = cloud
+            .time_kind
+            .and_then(|kind| relative_seconds(&cloud.times, kind, stamp));
+        match (motion, times) {
+            (Some(motion), Some(times)) => {
+                deskew(&mut cloud.points, &times, &motion);
+                self.stats.deskewed += 1;
+            }
+            _ => self.stats.times_unused += 1,
+        }
+    }
+
     /// Whether a cloud stamped `stamp` is used: inside the odometry span, outside its gaps,
     /// after the previous scan. Clouds left out are recorded by reason.
     fn usable(&mut self, stamp: f64) -> bool {
@@ -667,6 +702,10 @@ impl Iterator for ScanStream {
                 continue; // unreachable: inside the span and outside every gap
             };
             self.dropped_non_finite += cloud.dropped_non_finite;
+            let mut cloud = cloud;
+            if self.deskew && cloud.time_kind.is_some() && !cloud.points.is_empty() {
+                self.deskewed(&mut cloud, &world_from_body);
+            }
             // IMU window: since the previous cloud (one scan period); the first scan takes
             // the sample nearest to its stamp.
             let t0 = self.previous_stamp.unwrap_or(stamp);

@@ -32,6 +32,9 @@ impl Encoding {
 pub struct Header {
     /// `stamp.sec + 1e-9 stamp.nanosec`, seconds.
     pub stamp: f64,
+    /// The same stamp in whole nanoseconds, exactly (a driver's per-point times are reckoned
+    /// in them: `crate::io::livox`).
+    pub stamp_ns: i64,
     /// `frame_id`.
     pub frame_id: String,
 }
@@ -119,4 +122,10 @@ pub trait WireReader<'a> {
 /// Seconds from a ROS time `(sec, nanosec)`.
 pub fn stamp_seconds(sec: i64, nanosec: u32) -> f64 {
     sec as f64 + f64::from(nanosec) * 1e-9
+}
+
+/// Nanoseconds from a ROS time `(sec, nanosec)` (saturating beyond the year 2262).
+pub fn stamp_nanoseconds(sec: i64, nanosec: u32) -> i64 {
+    sec.saturating_mul(1_000_000_000)
+        .saturating_add(i64::from(nanosec))
 }

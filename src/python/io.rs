@@ -110,13 +110,14 @@ pub(crate) type FaultRow = (
 
 /// `(faults, odometry gaps (start, end, kind), stamps skipped in gaps, out-of-order clouds
 /// (stamp, previous), cloud counts (messages, undecodable, zero_size, empty,
-/// non_finite_points, out_of_order), message errors)` of a scan stream.
+/// non_finite_points, out_of_order, deskewed, times_unused), message errors)` of a scan
+/// stream.
 pub(crate) type HealthRow = (
     Vec<FaultRow>,
     Vec<(f64, f64, String)>,
     Vec<f64>,
     Vec<(f64, f64)>,
-    (u64, u64, u64, u64, u64, u64),
+    (u64, u64, u64, u64, u64, u64, u64, u64),
     Vec<String>,
 );
 
@@ -152,6 +153,8 @@ pub(crate) fn health_of(stream: &ScanStream) -> HealthRow {
             c.empty,
             c.non_finite_points,
             c.out_of_order,
+            c.deskewed,
+            c.times_unused,
         ),
         stream.message_errors().to_vec(),
     )
@@ -164,8 +167,10 @@ fn tum_row(stamp: f64, pose: &crate::geometry::Pose) -> [f64; 8] {
 
 /// Opens a scan stream (reads odometry and IMU first). `odom` and `odom_tum` are exclusive.
 #[pyfunction]
-/// `gap_periods`: odometry gap bound in median periods (5.0 = `DEFAULT_GAP_PERIODS`).
-#[pyo3(signature = (path, points = None, odom = None, odom_tum = None, imu = None, gap_periods = 5.0))]
+/// `gap_periods`: odometry gap bound in median periods (5.0 = `DEFAULT_GAP_PERIODS`);
+/// `deskew`: points moved to the stamp's pose by their own times (`crate::deskew`).
+#[pyo3(signature = (path, points = None, odom = None, odom_tum = None, imu = None, gap_periods = 5.0, deskew = true))]
+#[allow(clippy::too_many_arguments)]
 fn open_scan_stream(
     py: Python<'_>,
     path: PathBuf,
@@ -174,6 +179,7 @@ fn open_scan_stream(
     odom_tum: Option<PathBuf>,
     imu: Option<String>,
     gap_periods: f64,
+    deskew: bool,
 ) -> PyResult<ScanReader> {
     let odometry = match (odom, odom_tum) {
         (Some(_), Some(_)) => {
@@ -190,6 +196,7 @@ fn open_scan_stream(
         imu_topic: imu,
         imu_samples: None,
         gap_periods,
+        deskew,
     };
     let stream = detached(py, || ScanStream::open(&path, &opts))?;
     Ok(ScanReader {

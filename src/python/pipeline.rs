@@ -107,6 +107,7 @@ impl PyLogProcessor {
             imu_topic,
             imu_samples: imu_samples.map(|a| imu_rows(&a)).transpose()?,
             gap_periods: config.submap.odometry_gap_periods,
+            deskew: config.submap.deskew,
         };
         let mut inner = detached(py, || LogProcessor::open(&path, &options, &config, batch))?;
         if !map {
