@@ -78,8 +78,8 @@ pub struct SubmapConfig {
     /// at the scan stamp by the motion of the trajectory the submap is stitched on
     /// (`crate::deskew`): a spinning sensor's turn takes 0.1 s, 0.13 m of travel along the
     /// axis at 1.3 m/s. On a simulated 6 m shield with 64 beams, a turn and 1.3 m/s (seed 613,
-    /// `decod simulate --sweep`) 187 -> 269 loops, RMSE 0.063 -> 0.016 m, as the same log
-    /// scanned from one pose per scan. Clouds without times are as before. Absent from a
+    /// `decod simulate --sweep`) 187 -> 271 loops, RMSE 0.063 -> 0.015 m (the same world
+    /// scanned from one pose per scan: 269, 0.016 m). Clouds without times are as before. Absent from a
     /// stored config: false (a survey's descriptors were built without it).
     #[serde(default)]
     pub deskew: bool,

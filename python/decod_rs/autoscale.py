@@ -291,6 +291,7 @@ def _read_probe_scans(
     odom_topic: str | None,
     odom_tum: Path | None,
     imu_topic: str | None,
+    deskew: bool = True,
 ) -> tuple[list[list[Any]], FloatArray, FloatArray, FloatArray | None]:
     """The probe windows among the first PROBE_MAX_SCANS scans of ``log`` (:func:`_probe_starts`
     of their count), the stamps of all those scans, the log's odometry and its IMU samples.
@@ -298,7 +299,7 @@ def _read_probe_scans(
     Only the windows' scans are kept (40 of 300: a 64-beam log's probe held 160 MB of points
     for the 300). The windows are planned on the count the log announces; when fewer scans
     pair with the odometry than that, the log is read once more with the count it gave."""
-    reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic)
+    reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic, deskew=deskew)
     planned = min(PROBE_MAX_SCANS, max(int(reader.total_scans_hint), PROBE_SCANS))
     windows, stamps = _read_windows(reader, _probe_starts(planned))
     if len(stamps) < PROBE_SCANS:
@@ -306,7 +307,7 @@ def _read_probe_scans(
             f"{log}: auto configuration needs >= {PROBE_SCANS} scans, got {len(stamps)}"
         )
     if len(stamps) != planned:  # scans left out (outside the odometry, in a gap): plan again
-        reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic)
+        reader = read_log(log, points_topic, odom_topic, odom_tum, imu_topic, deskew=deskew)
         windows, stamps = _read_windows(reader, _probe_starts(len(stamps)))
     return windows, stamps, reader.odometry(), reader.imu_samples()
 
@@ -412,12 +413,15 @@ def probe_corridor(
     odom_topic: str | None,
     odom_tum: Path | None,
     imu_topic: str | None,
+    deskew: bool = True,
 ) -> tuple[CorridorProbe, FloatArray | None]:
-    """Measure the corridor from the first scans of ``log`` (module docs, steps 1-4). Also
-    returns the IMU samples the probe's pass over the log read (``None`` without an IMU):
-    the run's processor takes them instead of reading the whole file for them again."""
+    """Measure the corridor from the first scans of ``log`` (module docs, steps 1-4), their
+    points moved by their own times where the clouds carry them and ``deskew`` (the run's
+    ``submap.deskew``). Also returns the IMU samples the probe's pass over the log read
+    (``None`` without an IMU): the run's processor takes them instead of reading the whole
+    file for them again."""
     candidates, stamps, odometry, imu = _read_probe_scans(
-        log, points_topic, odom_topic, odom_tum, imu_topic
+        log, points_topic, odom_topic, odom_tum, imu_topic, deskew
     )
     probe = _measure(log, candidates, stamps, odometry)
     steady = _steadied(candidates, stamps, odometry, probe)

@@ -139,7 +139,10 @@ def configure(
     if survey is not None and preset == "auto" and config_path is None:
         cfg = survey_config(survey)
     elif preset == "auto":
-        probe, imu = probe_corridor(log, *topics)
+        # The user's TOML read first: refused before the probe, and its submap.deskew the
+        # probe's too.
+        deskew = config_path is None or bool(load_config(config_path, "tunnel").submap.deskew)
+        probe, imu = probe_corridor(log, *topics, deskew=deskew)
         cfg, auto = auto_config(probe, None if config_path is None else Path(config_path))
     else:
         cfg = load_config(config_path, preset)
