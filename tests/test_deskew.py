@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import decod_rs
+from decod_rs.commands.run import print_setup
 from decod_rs.evaluate import evaluate_run
 from decod_rs.pipeline import run_log
 from decod_rs.sim import simulate
@@ -59,7 +60,9 @@ def test_a_swept_scan_carries_its_points_times_and_is_moved_by_them(swept: Path)
     assert late.mean() > early.mean() + 0.1
 
 
-def test_deskewing_recovers_what_the_sweep_costs(swept: Path, tmp_path: Path) -> None:
+def test_deskewing_recovers_what_the_sweep_costs(
+    swept: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     def run(name: str, deskew: bool) -> tuple[dict, dict]:
         out = tmp_path / name
         config = tmp_path / f"{name}.toml"
@@ -80,6 +83,14 @@ def test_deskewing_recovers_what_the_sweep_costs(swept: Path, tmp_path: Path) ->
     clouds = on_report["ingest"]["clouds"]["/points"]
     assert clouds["deskewed"] == clouds["messages"] and clouds["times_unused"] == 0
     assert off_report["ingest"]["clouds"]["/points"]["deskewed"] == 0
+    # decod run's summary says so.
+    print_setup(on_report)
+    said = [line for line in capsys.readouterr().out.splitlines() if line.startswith("deskew")]
+    n = clouds["messages"]
+    assert said == [
+        f"deskew         {n} of {n} scans on /points moved to their stamp's pose by their "
+        "points' times"
+    ]
     # Deskewed: loops, none wrong. As written, the scans sheared by 0.2 m: fewer loops (here
     # 29 against 15, RMSE 0.016 against 0.091 m; on the simulated 6 m shield with 64 beams at
     # 1.3 m/s 271 against 187, with 16 beams at 2 m/s over 20 m 56 against 26).

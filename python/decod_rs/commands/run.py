@@ -212,8 +212,28 @@ def print_setup(report: dict[str, Any]) -> None:
             f"{jitter['fit_window_s']:.1f} s"
         )
     print_stall((report.get("ingest") or {}).get("odometry_stall"))
+    print_deskew(report)
     if report.get("no_loop_reason"):
         print(f"no loop        {report['no_loop_reason']}")
+
+
+def print_deskew(report: dict[str, Any]) -> None:
+    """How many scans were moved to their stamp's pose by their points' times, and how many
+    had a time field that could not be read so (``report.json`` ``ingest.clouds``)."""
+    for topic, c in ((report.get("ingest") or {}).get("clouds") or {}).items():
+        done, unused = int(c.get("deskewed", 0)), int(c.get("times_unused", 0))
+        if done or unused:
+            scans = done + unused
+            rest = (
+                f"; {unused} with times not within one scan (or no trajectory around them), "
+                "taken as written"
+                if unused
+                else ""
+            )
+            print(
+                f"deskew         {done} of {scans} scans on {topic} moved to their stamp's pose "
+                f"by their points' times{rest}"
+            )
 
 
 def print_stall(stall: dict[str, Any] | None) -> None:
