@@ -101,3 +101,19 @@ def test_deskewing_recovers_what_the_sweep_costs(
     trajectory = on["trajectory"]
     assert trajectory["corrected"]["rmse_m"] < trajectory["odometry"]["rmse_m"]
     assert trajectory["corrected"]["rmse_m"] < off["trajectory"]["corrected"]["rmse_m"]
+
+
+def test_a_sweep_is_refused_where_it_is_not_simulated(tmp_path: Path) -> None:
+    # Refused before anything is written, naming what does not go with it.
+    with pytest.raises(ValueError, match="sweep: not written into livox custom messages"):
+        simulate("hume", tmp_path / "a", length_m=5.0, sweep=True, livox=True, progress=False)
+    with pytest.raises(ValueError, match="sweep: not simulated in a curving corridor"):
+        simulate(
+            "shield",
+            tmp_path / "b",
+            length_m=5.0,
+            sweep=True,
+            curve_radius_m=300.0,
+            progress=False,
+        )
+    assert not (tmp_path / "a" / "log").exists() and not (tmp_path / "b" / "log").exists()

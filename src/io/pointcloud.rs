@@ -188,18 +188,18 @@ fn find_time(meta: &CloudMeta) -> Option<(Coord, TimeKind)> {
 /// A point's time as written (offsets checked against point_step by [`find_time`]).
 #[inline]
 fn read_time(point: &[u8], c: Coord, big: bool) -> f64 {
-    let four = |o: usize| [point[o], point[o + 1], point[o + 2], point[o + 3]];
+    let o = c.offset;
+    let four = [point[o], point[o + 1], point[o + 2], point[o + 3]];
+    let bits = || {
+        if big {
+            u32::from_be_bytes(four)
+        } else {
+            u32::from_le_bytes(four)
+        }
+    };
     match c.datatype {
-        datatype::UINT32 => f64::from(if big {
-            u32::from_be_bytes(four(c.offset))
-        } else {
-            u32::from_le_bytes(four(c.offset))
-        }),
-        datatype::FLOAT32 => f64::from(if big {
-            f32::from_be_bytes(four(c.offset))
-        } else {
-            f32::from_le_bytes(four(c.offset))
-        }),
+        datatype::UINT32 => f64::from(bits()),
+        datatype::FLOAT32 => f64::from(f32::from_bits(bits())),
         _ => {
             let mut b = [0u8; 8];
             b.copy_from_slice(&point[c.offset..c.offset + 8]);

@@ -674,7 +674,7 @@ impl Iterator for ScanStream {
                 .files()
                 .get(msg.file)
                 .map_or_else(|| self.path.clone(), |f| f.0.clone());
-            let cloud = match decode_cloud(self.points_kind, self.points_encoding, &msg.data) {
+            let mut cloud = match decode_cloud(self.points_kind, self.points_encoding, &msg.data) {
                 Ok(c) => c,
                 Err(e) => return Some(Err(self.undecodable(&file, msg.log_time, e))),
             };
@@ -702,7 +702,6 @@ impl Iterator for ScanStream {
                 continue; // unreachable: inside the span and outside every gap
             };
             self.dropped_non_finite += cloud.dropped_non_finite;
-            let mut cloud = cloud;
             if self.deskew && cloud.time_kind.is_some() && !cloud.points.is_empty() {
                 self.deskewed(&mut cloud, &world_from_body);
             }

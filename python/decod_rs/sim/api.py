@@ -200,9 +200,7 @@ class Simulation:
         dirs_body = ray_directions(self.sensor, k)
         rng = np.random.default_rng([self.seed, 5, k])
 
-        def measure_from(
-            _rot: F64, origin: F64, dirs_world: F64
-        ) -> tuple[F64, NDArray[np.float32]]:
+        def measure_from(origin: F64, dirs_world: F64) -> tuple[F64, NDArray[np.float32]]:
             hits = cast(self.scene, origin, dirs_world)
             pts, inten, _ = measure(
                 self.sensor,
@@ -219,7 +217,7 @@ class Simulation:
             return swept_points(self.straight_poses, k, dirs_body, self.sensor, measure_from)
         pose = self.straight_poses[k]
         rot, origin = pose[:3, :3], pose[:3, 3]
-        pts_w, inten = measure_from(rot, origin, dirs_body @ rot.T)
+        pts_w, inten = measure_from(origin, dirs_body @ rot.T)
         if self.bend is not None:
             pts_w = self.bend.points(pts_w)
             rot, origin = self.gt_poses[k, :3, :3], self.gt_poses[k, :3, 3]

@@ -72,12 +72,12 @@ def swept_points(
     k: int,
     dirs_body: F64,
     spec: SensorSpec,
-    measure_from: Callable[[F64, F64, F64], tuple[F64, NDArray[np.float32]]],
+    measure_from: Callable[[F64, F64], tuple[F64, NDArray[np.float32]]],
     chunks: int = SWEEP_CHUNKS,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.uint32]]:
     """Scan ``k`` swept (module docs): ``poses`` (N, 4, 4) at the scan stamps (the last scan
-    sweeps on along the step before it), ``dirs_body`` (M, 3) the rays, ``measure_from(R,
-    origin, dirs_world) -> (points_world, intensity)`` one group's cast and measurement.
+    sweeps on along the step before it), ``dirs_body`` (M, 3) the rays, ``measure_from(origin,
+    dirs_world) -> (points_world, intensity)`` one group's cast and measurement.
     Returns the points (float32, each in the frame of its own pose), their intensities and
     their times since the sweep's start (ns)."""
     times = ray_times_s(spec, dirs_body.shape[0])
@@ -98,7 +98,7 @@ def swept_points(
         mid = 0.5 * (edges[g] + edges[g + 1])
         pose = pose_between(start, end, mid / SCAN_PERIOD_S)
         rot, origin = pose[:3, :3], pose[:3, 3]
-        pts_w, inten = measure_from(rot, origin, dirs_body[rays] @ rot.T)
+        pts_w, inten = measure_from(origin, dirs_body[rays] @ rot.T)
         parts_p.append((pts_w - origin) @ rot)
         parts_i.append(inten)
         parts_t.append(np.full(len(pts_w), round(mid * 1e9), dtype=np.uint32))
