@@ -185,52 +185,46 @@ fn find_time(meta: &CloudMeta) -> Option<(Coord, TimeKind)> {
     ))
 }
 
-/// A point's time as written (offsets checked against point_step by [`find_time`]).
+/// The 4 bytes at `o` as a `u32` in the cloud's byte order (offsets checked against
+/// point_step by [`find_coord`] / [`find_time`], and `point` is point_step long).
+#[inline]
+fn word4(point: &[u8], o: usize, big: bool) -> u32 {
+    let b = [point[o], point[o + 1], point[o + 2], point[o + 3]];
+    if big {
+        u32::from_be_bytes(b)
+    } else {
+        u32::from_le_bytes(b)
+    }
+}
+
+/// The 8 bytes at `o` as a `u64` in the cloud's byte order (as [`word4`]).
+#[inline]
+fn word8(point: &[u8], o: usize, big: bool) -> u64 {
+    let mut b = [0u8; 8];
+    b.copy_from_slice(&point[o..o + 8]);
+    if big {
+        u64::from_be_bytes(b)
+    } else {
+        u64::from_le_bytes(b)
+    }
+}
+
+/// A point's time as written.
 #[inline]
 fn read_time(point: &[u8], c: Coord, big: bool) -> f64 {
-    let o = c.offset;
-    let four = [point[o], point[o + 1], point[o + 2], point[o + 3]];
-    let bits = || {
-        if big {
-            u32::from_be_bytes(four)
-        } else {
-            u32::from_le_bytes(four)
-        }
-    };
     match c.datatype {
-        datatype::UINT32 => f64::from(bits()),
-        datatype::FLOAT32 => f64::from(f32::from_bits(bits())),
-        _ => {
-            let mut b = [0u8; 8];
-            b.copy_from_slice(&point[c.offset..c.offset + 8]);
-            if big {
-                f64::from_be_bytes(b)
-            } else {
-                f64::from_le_bytes(b)
-            }
-        }
+        datatype::UINT32 => f64::from(word4(point, c.offset, big)),
+        datatype::FLOAT32 => f64::from(f32::from_bits(word4(point, c.offset, big))),
+        _ => f64::from_bits(word8(point, c.offset, big)),
     }
 }
 
 #[inline]
 fn read_coord(point: &[u8], c: Coord, big: bool) -> f32 {
-    // Offsets were checked against point_step, and `point` is point_step long.
     if c.datatype == datatype::FLOAT32 {
-        let mut b = [0u8; 4];
-        b.copy_from_slice(&point[c.offset..c.offset + 4]);
-        if big {
-            f32::from_be_bytes(b)
-        } else {
-            f32::from_le_bytes(b)
-        }
+        f32::from_bits(word4(point, c.offset, big))
     } else {
-        let mut b = [0u8; 8];
-        b.copy_from_slice(&point[c.offset..c.offset + 8]);
-        (if big {
-            f64::from_be_bytes(b)
-        } else {
-            f64::from_le_bytes(b)
-        }) as f32
+        f64::from_bits(word8(point, c.offset, big)) as f32
     }
 }
 
