@@ -19,6 +19,7 @@ from decod_rs.bench.matrix import (
     SLIP,
     SYMMETRIC,
     UNEVEN,
+    _cached_sweep,
     evaluate_targets,
     format_markdown,
     format_row,
@@ -207,6 +208,25 @@ def test_slip_profile_and_the_profiles_option(tmp_path, capsys) -> None:
         if abs(step_true) > 1.5:  # a stretch of steady driving (not the turnaround)
             # 1 cm/sqrt(m) of axial walk: 0.03 of slack
             assert 0.85 - 0.03 < step / step_true < 0.99 + 0.03
+
+
+def test_sweep_option_and_a_cached_log_taken_the_same_way(tmp_path, capsys) -> None:
+    """``--sweep`` simulates every cell swept (``--list`` says so); a cached log counts only
+    if it was simulated the same way (a log from before the simulator's sweep was not swept),
+    so a swept matrix never runs on a log taken from one pose per scan."""
+    assert main(["--out", str(tmp_path / "m"), "--tier", "quick", "--sweep", "--list"]) == 0
+    listed = capsys.readouterr().out.strip().splitlines()
+    assert listed and all("[swept]" in line for line in listed)
+    assert main(["--out", str(tmp_path / "m"), "--tier", "quick", "--list"]) == 0
+    assert "[swept]" not in capsys.readouterr().out
+
+    joints = tmp_path / "joints.json"
+    assert _cached_sweep(joints) is None  # nothing cached
+    for text, swept in (('{"sweep": true}', True), ('{"sweep": false}', False), ("{}", False)):
+        joints.write_text(text)
+        assert _cached_sweep(joints) is swept
+    joints.write_text("{not json")
+    assert _cached_sweep(joints) is None  # a damaged cache is simulated again
 
 
 def test_full_ring_distance_follows_the_field_of_view() -> None:

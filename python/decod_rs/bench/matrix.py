@@ -65,9 +65,12 @@ precision@1 >= 98 % at 0.3 m; no accepted loop beyond the coarse tolerance; join
 >= 1 m; corrected RMSE never above the odometry's; no accepted loop in the aliased cell.
 
 **Output**: ``DIR/cells/NAME/sim/`` (the simulated log, cached: skipped when its
-``joints.json`` exists), ``DIR/cells/NAME/PROFILE/{odom.tum,run/,cell.json}``,
-``DIR/matrix.json`` and ``DIR/matrix.md``. An exception in a cell is recorded in its
-``cell.json`` and table row; the matrix goes on.
+``joints.json`` exists and was simulated with the same ``--sweep``),
+``DIR/cells/NAME/PROFILE/{odom.tum,run/,cell.json}``, ``DIR/matrix.json`` and
+``DIR/matrix.md``. An exception in a cell is recorded in its ``cell.json`` and table row;
+the matrix goes on. ``--sweep`` simulates every scan over a sweep, each point at its own
+time, as a real LiDAR takes it (``decod simulate --sweep``; the tiers' figures in the README
+were run both ways).
 """
 
 from __future__ import annotations
@@ -174,6 +177,9 @@ class Cell:
     #: Seconds standing still before moving off and after coming back (``decod simulate
     #: --standstill``); None: the simulator's 2 and 1.
     standstill_s: tuple[float, float] | None = None
+    #: Every point measured at its own time within its scan (``decod simulate --sweep``),
+    #: as a real LiDAR takes it; the matrix's ``--sweep``.
+    sweep: bool = False
 
 
 @dataclass(frozen=True)
@@ -692,6 +698,7 @@ def format_markdown(rows: Sequence[dict[str, Any]], meta: dict[str, Any]) -> str
         "# Generalisation matrix",
         "",
         f"Tier {meta.get('tier', '?')}, preset {meta.get('preset', 'run_log default')}, "
+        f"{'scans swept (each point at its own time), ' if meta.get('sweep') else ''}"
         f"{len({r['cell'] for r in rows})} cells, {len(rows)} rows, "
         f"{meta.get('elapsed_s', 0.0) / 60.0:.1f} min. Drift: symmetric = endpoint model at "
         f"{100 * SYMMETRIC_ENDPOINT_FRACTION:.0f} % of the one-way length; uneven = "
@@ -730,7 +737,7 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
     from decod_rs.sim import simulate
 
     sim_dir = cell_dir / "sim"
-    if (sim_dir / "joints.json").exists():
+    if _cached_sweep(sim_dir / "joints.json") == cell.sweep:
         return sim_dir, 0.0
     t0 = time.perf_counter()
     simulate(
@@ -750,10 +757,21 @@ def simulate_cell(cell: Cell, cell_dir: Path) -> tuple[Path, float]:
         stops=cell.stops,
         backups=cell.backups,
         standstill_s=cell.standstill_s,
+        sweep=cell.sweep,
         progress=False,
         overwrite=True,
     )
     return sim_dir, time.perf_counter() - t0
+
+
+def _cached_sweep(joints_json: Path) -> bool | None:
+    """Whether the cached log at ``joints_json`` was simulated swept (a log written before
+    the simulator's sweep was not); None: no cached log."""
+    try:
+        meta = json.loads(joints_json.read_text())
+    except (OSError, ValueError):
+        return None
+    return bool(meta.get("sweep", False)) if isinstance(meta, dict) else None
 
 
 def _travelled(meta: dict[str, Any], stamps: FloatArray) -> FloatArray:
@@ -1090,6 +1108,7 @@ def _base_row(cell: Cell, profile: str, preset: str | None) -> dict[str, Any]:
         "variant": cell.variant,
         "held_out": cell.held_out,
         "aliased": cell.identical_joints,
+        "sweep": cell.sweep,
         "preset": preset,
         "full_ring_m": ring_distance_for(cell.scene, cell.sensor, cell.scene_overrides),
         "status": "ok",
@@ -1213,6 +1232,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help=f"comma-separated drift profiles run in every cell instead of the tier's, of "
         f"{', '.join(p for p in PROFILES if p != KISS)} (e.g. --profiles slip)",
     )
+    p.add_argument(
+        "--sweep",
+        action="store_true",
+        help="simulate every cell's scans over a sweep, each point at its own time with "
+        "Ouster's per-point t, as a real LiDAR takes them (decod simulate --sweep)",
+    )
     p.add_argument("--jobs", type=int, default=1, help="cells run in parallel")
     p.add_argument("--list", action="store_true", help="list the cells and exit")
     return p.parse_args(argv)
@@ -1232,10 +1257,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"--profiles: {unknown or args.profiles!r} not of {allowed}", file=sys.stderr)
             return 2
         cells = [replace(c, profiles=chosen) for c in cells]
+    if args.sweep:
+        cells = [replace(c, sweep=True) for c in cells]
     if args.list:
         for c in cells:
             held = " [held out]" if c.held_out else ""
-            print(f"{c.name}{held}: {', '.join(c.profiles)} {c.variant}")
+            swept = " [swept]" if c.sweep else ""
+            print(f"{c.name}{held}{swept}: {', '.join(c.profiles)} {c.variant}")
         return 0
     kiss = bool(args.kiss and kiss_available())
     if args.kiss and not kiss:
@@ -1249,6 +1277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.preset, args.preset
         ),
         "kiss": kiss,
+        "sweep": bool(args.sweep),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "elapsed_s": 0.0,
         "cells": [asdict(c) for c in cells],

@@ -200,9 +200,11 @@ class Simulation:
         dirs_body = ray_directions(self.sensor, k)
         rng = np.random.default_rng([self.seed, 5, k])
 
-        def measure_from(origin: F64, dirs_world: F64) -> tuple[F64, NDArray[np.float32]]:
+        def measure_from(
+            origin: F64, dirs_world: F64
+        ) -> tuple[F64, NDArray[np.float32], NDArray[np.bool_]]:
             hits = cast(self.scene, origin, dirs_world)
-            pts, inten, _ = measure(
+            return measure(
                 self.sensor,
                 hits,
                 origin,
@@ -211,13 +213,12 @@ class Simulation:
                 rng,
                 self._return_fraction,
             )
-            return pts, inten
 
         if self.sweep:
             return swept_points(self.straight_poses, k, dirs_body, self.sensor, measure_from)
         pose = self.straight_poses[k]
         rot, origin = pose[:3, :3], pose[:3, 3]
-        pts_w, inten = measure_from(origin, dirs_body @ rot.T)
+        pts_w, inten, _ = measure_from(origin, dirs_body @ rot.T)
         if self.bend is not None:
             pts_w = self.bend.points(pts_w)
             rot, origin = self.gt_poses[k, :3, :3], self.gt_poses[k, :3, 3]

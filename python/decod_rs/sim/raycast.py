@@ -44,7 +44,7 @@ class Hits:
     valid: NDArray[np.bool_]
 
 
-def _exit_circle(oy: float, oz: float, dy: F64, dz: F64, r: F64 | float) -> F64:
+def _exit_circle(oy: F64, oz: F64, dy: F64, dz: F64, r: F64 | float) -> F64:
     """Largest root of ``|o + t d|_yz = r`` (exit of a disc from inside); inf if none."""
     a = dy * dy + dz * dz
     b = oy * dy + oz * dz
@@ -55,17 +55,26 @@ def _exit_circle(oy: float, oz: float, dy: F64, dz: F64, r: F64 | float) -> F64:
     return np.where(a > 1e-14, t, np.inf)
 
 
-def _plane_time(o: float, d: F64, target: F64 | float) -> F64:
+def _plane_time(o: F64, d: F64, target: F64 | float) -> F64:
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (np.asarray(target) - o) / d
     return np.where(np.abs(d) > 1e-12, t, np.inf)
 
 
+def _coordinates(origin: F64) -> tuple[F64, F64, F64]:
+    """An origin's x, y, z: scalars (0-d) for one origin, columns for one per ray."""
+    o = np.asarray(origin, dtype=np.float64)
+    return o[..., 0], o[..., 1], o[..., 2]
+
+
 def cast(scene: Scene, origin: F64, dirs: F64) -> Hits:
-    """Cast unit rays ``dirs (N, 3)`` from ``origin (3,)`` (world frame, inside the corridor)."""
+    """Cast unit rays ``dirs (N, 3)`` from ``origin``, one (3,) for all or one per ray (N, 3)
+    (world frame, inside the corridor)."""
     if dirs.ndim != 2 or dirs.shape[1] != 3:
         raise ValueError(f"dirs must have shape (N, 3), got {dirs.shape}")
-    ox, oy, oz = (float(v) for v in origin)
+    if origin.shape not in ((3,), dirs.shape):
+        raise ValueError(f"origin must have shape (3,) or {dirs.shape}, got {origin.shape}")
+    ox, oy, oz = _coordinates(origin)
     dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
     n = dirs.shape[0]
     radius = scene.radius_m
@@ -134,7 +143,7 @@ def _cast_arches(scene: Scene, origin: F64, dirs: F64, take: object) -> None:
     an arch band it hits the inner surface, otherwise the first arch face beyond it."""
     arches = scene.arches
     assert arches is not None
-    ox, oy, oz = (float(v) for v in origin)
+    ox, oy, oz = _coordinates(origin)
     dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
     t_in = _exit_circle(oy, oz, dy, dz, arches.nominal_inner_radius)
     fin = np.isfinite(t_in)

@@ -125,7 +125,8 @@ def measure(
     rng: np.random.Generator,
     return_fraction: NDArray[np.float64] | None = None,
 ) -> tuple[F64, NDArray[np.float32], NDArray[np.bool_]]:
-    """Turn exact hits into measurements (world frame): range noise along the ray, dropouts
+    """Turn exact hits into measurements (world frame; ``origin`` (3,) or one per hit
+    (N, 3), as :func:`~decod_rs.sim.raycast.cast`'s): range noise along the ray, dropouts
     (random, grazing incidence, out of range, and per surface kind ``return_fraction``,
     indexed like ``reflectivity``, e.g. water) and intensity. Returns ``(points (M, 3),
     intensity (M,), keep (N,))``."""
@@ -150,7 +151,7 @@ def measure(
     )
     with np.errstate(invalid="ignore", divide="ignore"):
         unit = vec / rng_true[:, None]
-    pts = origin + unit[keep] * rng_meas[keep, None]
+    pts = (origin[keep] if origin.ndim == 2 else origin) + unit[keep] * rng_meas[keep, None]
     refl = reflectivity[hits.kind[keep]]
     inten = (
         refl

@@ -9,11 +9,11 @@ as seen from the stamp's pose (no deskewing) sees the world sheared by the dista
 within the sweep: 0.13 m at 1.3 m/s, along the corridor axis, which is the direction the
 boundaries are measured in.
 
-:func:`swept_points` casts the rays of a scan in ``chunks`` groups by time, each from the
-pose interpolated at its group's mid time (translation linear, rotation along the geodesic
-between the scan's pose and the next), and returns the points in the frame of the pose
-each was measured from, with their times. 32 groups quantise the time to 3.1 ms (4 mm at
-1.3 m/s).
+:func:`swept_points` casts every ray of a scan from the pose interpolated at the ray's own
+time (translation linear, rotation along the geodesic between the scan's pose and the next),
+all in one call, and returns the points in the frame of the pose each was measured from,
+with their times as the drivers report them (whole ns): a spinning sensor's column time, a
+rosette's ray time.
 """
 
 from __future__ import annotations
@@ -26,9 +26,6 @@ from numpy.typing import NDArray
 from decod_rs.sim.fields import F64
 from decod_rs.sim.sensors import SCAN_PERIOD_S, SensorSpec
 
-#: Ray groups per sweep (module docs).
-SWEEP_CHUNKS = 32
-
 
 def ray_times_s(spec: SensorSpec, n_rays: int) -> F64:
     """Each ray's time since the sweep's start (s), in the order of
@@ -40,13 +37,17 @@ def ray_times_s(spec: SensorSpec, n_rays: int) -> F64:
     return np.arange(n_rays) / max(n_rays, 1) * SCAN_PERIOD_S
 
 
-def _rotation_exp(w: F64) -> F64:
-    """Rodrigues: the rotation of the rotation vector ``w`` (3,)."""
+def _rotations_exp(w: F64, fractions: F64) -> F64:
+    """Rodrigues for many angles about one axis: the rotations of ``fractions[i] * w``
+    (``w`` (3,), ``fractions`` (T,)), (T, 3, 3)."""
     angle = float(np.linalg.norm(w))
     k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    s = np.asarray(fractions, dtype=np.float64)[:, None, None]
     if angle < 1e-12:
-        return np.eye(3) + k
-    return np.eye(3) + np.sin(angle) / angle * k + (1.0 - np.cos(angle)) / angle**2 * (k @ k)
+        return np.eye(3) + s * k
+    a = np.sin(s * angle) / angle
+    b = (1.0 - np.cos(s * angle)) / angle**2
+    return np.eye(3) + a * k + b * (k @ k)
 
 
 def _rotation_log(r: F64) -> F64:
@@ -59,12 +60,12 @@ def _rotation_log(r: F64) -> F64:
     return angle / (2.0 * np.sin(angle)) * v
 
 
-def pose_between(a: F64, b: F64, s: float) -> F64:
-    """The pose at fraction ``s`` of the way from ``a`` to ``b`` (4x4 each)."""
-    out = np.eye(4)
-    out[:3, :3] = a[:3, :3] @ _rotation_exp(s * _rotation_log(a[:3, :3].T @ b[:3, :3]))
-    out[:3, 3] = (1.0 - s) * a[:3, 3] + s * b[:3, 3]
-    return out
+def poses_between(a: F64, b: F64, fractions: F64) -> tuple[F64, F64]:
+    """The poses at ``fractions`` (T,) of the way from ``a`` to ``b`` (4x4 each): their
+    rotations (T, 3, 3) and positions (T, 3)."""
+    rot = a[:3, :3] @ _rotations_exp(_rotation_log(a[:3, :3].T @ b[:3, :3]), fractions)
+    s = np.asarray(fractions, dtype=np.float64)[:, None]
+    return rot, (1.0 - s) * a[:3, 3] + s * b[:3, 3]
 
 
 def swept_points(
@@ -72,12 +73,12 @@ def swept_points(
     k: int,
     dirs_body: F64,
     spec: SensorSpec,
-    measure_from: Callable[[F64, F64], tuple[F64, NDArray[np.float32]]],
-    chunks: int = SWEEP_CHUNKS,
+    measure_from: Callable[[F64, F64], tuple[F64, NDArray[np.float32], NDArray[np.bool_]]],
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.uint32]]:
     """Scan ``k`` swept (module docs): ``poses`` (N, 4, 4) at the scan stamps (the last scan
-    sweeps on along the step before it), ``dirs_body`` (M, 3) the rays, ``measure_from(origin,
-    dirs_world) -> (points_world, intensity)`` one group's cast and measurement.
+    sweeps on along the step before it), ``dirs_body`` (M, 3) the rays, ``measure_from(origins,
+    dirs_world) -> (points_world, intensity, kept)`` the cast and measurement of every ray from
+    its own origin (M, 3), ``kept`` (M,) the rays that returned a point.
     Returns the points (float32, each in the frame of its own pose), their intensities and
     their times since the sweep's start (ns)."""
     times = ray_times_s(spec, dirs_body.shape[0])
@@ -88,28 +89,11 @@ def swept_points(
         start, end = poses[k], poses[k] @ np.linalg.inv(poses[k - 1]) @ poses[k]
     else:
         start = end = poses[k]
-    edges = np.linspace(0.0, SCAN_PERIOD_S, chunks + 1)
-    group = np.clip(np.searchsorted(edges, times, side="right") - 1, 0, chunks - 1)
-    parts_p, parts_i, parts_t = [], [], []
-    for g in range(chunks):
-        rays = group == g
-        if not np.any(rays):
-            continue
-        mid = 0.5 * (edges[g] + edges[g + 1])
-        pose = pose_between(start, end, mid / SCAN_PERIOD_S)
-        rot, origin = pose[:3, :3], pose[:3, 3]
-        pts_w, inten = measure_from(origin, dirs_body[rays] @ rot.T)
-        parts_p.append((pts_w - origin) @ rot)
-        parts_i.append(inten)
-        parts_t.append(np.full(len(pts_w), round(mid * 1e9), dtype=np.uint32))
-    if not parts_p:
-        return (
-            np.zeros((0, 3), np.float32),
-            np.zeros(0, np.float32),
-            np.zeros(0, np.uint32),
-        )
-    return (
-        np.concatenate(parts_p).astype(np.float32),
-        np.concatenate(parts_i).astype(np.float32),
-        np.concatenate(parts_t),
-    )
+    # One pose per distinct time (a spinning sensor's column), then one per ray.
+    distinct, ray_of = np.unique(times, return_inverse=True)
+    rot_t, origin_t = poses_between(start, end, distinct / SCAN_PERIOD_S)
+    rot, origin = rot_t[ray_of], origin_t[ray_of]
+    pts_w, inten, kept = measure_from(origin, np.einsum("nij,nj->ni", rot, dirs_body))
+    pts_b = np.einsum("nji,nj->ni", rot[kept], pts_w - origin[kept])
+    stamp_ns = np.round(times[kept] * 1e9).astype(np.uint32)
+    return pts_b.astype(np.float32), inten.astype(np.float32), stamp_ns
