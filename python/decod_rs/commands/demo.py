@@ -1,6 +1,8 @@
 """``decod demo``: no arguments, no data. Simulates a hume concrete pipe driven out and back
-by a crawler whose odometry drifts along the pipe, runs DeCOD on the log, evaluates the
-result against the simulator's ground truth, and prints before/after and where the plots are.
+by a crawler whose odometry drifts along the pipe, its scans taken over a sweep as a real
+LiDAR takes them (each point at its own time, :mod:`decod_rs.sim.sweep`), runs DeCOD on the
+log, evaluates the result against the simulator's ground truth, and prints before/after and
+where the plots are.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ import time
 from pathlib import Path
 
 from decod_rs.commands.evaluate import evaluate_and_report
-from decod_rs.commands.run import print_summary
+from decod_rs.commands.run import print_outcome, print_summary
 
 #: One-way length of the demo pipe: long enough for a dozen joints and metres of drift, short
 #: enough that the whole demo takes well under a minute on two cores.
@@ -45,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         length_m=DEMO_LENGTH_M,
         drift=float(args.drift),
+        sweep=True,
         overwrite=True,
     )
     print(
@@ -54,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     print("2/3 running DeCOD (auto configuration: the pipe is measured, not assumed)")
     summary = run_log(sim.log_dir, out / "run", imu_topic="/imu")
     print_summary(summary)
+    print_outcome(out / "run")
     print("3/3 evaluating against ground truth")
     result = evaluate_and_report(out / "run", sim.gt_tum, joints=sim.joints_json)
     traj = result["trajectory"]

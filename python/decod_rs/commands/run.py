@@ -156,18 +156,25 @@ def run(args: argparse.Namespace) -> int:
         survey=args.survey,
     )
     print_summary(summary)
-    report = read_report(args.out)
+    print_outcome(args.out, survey=args.survey is not None, mapped=bool(args.map))
+    return 0
+
+
+def print_outcome(out: Path, survey: bool = False, mapped: bool = False) -> None:
+    """The lines after the run's summary, from ``out``'s report: what auto chose, the
+    rebuilt rounds, the joints, the factors within the passes, what was not measured; the
+    survey's and the map's when the run made them."""
+    report = read_report(out)
     print_setup(report)
     print_rebuild(report)
-    print_joints(args.out)
+    print_joints(out)
     print_within_passes(report)
     print_cross_axis(report)
     print_unmeasured(report)
-    if args.survey is not None:
+    if survey:
         print_survey(report)
-    if args.map:
+    if mapped:
         print_map(report)
-    return 0
 
 
 def read_report(out: Path) -> dict[str, Any]:
