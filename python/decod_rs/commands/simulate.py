@@ -138,7 +138,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--sweep",
         action="store_true",
         help="each point measured at its own time within the 0.1 s scan, in the sensor's frame "
-        "then, with a per-point t field (Ouster's, ns), as a real LiDAR moving at speed",
+        "then, with a per-point t field (Ouster's, ns; with --livox also offset_time), as a "
+        "real LiDAR moving at speed",
     )
     p.add_argument("--force", action="store_true", help="replace an existing DIR/log")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -753,14 +753,12 @@ def simulate(
     ``livox=True`` adds ``/livox/lidar`` (livox_ros_driver2/msg/CustomMsg, the same points);
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     ``sweep=True``: each point measured at its own time within its scan, in the sensor's frame
-    at that time, with Ouster's per-point ``t`` (:mod:`decod_rs.sim.sweep`); not with
-    ``livox`` or a curve.
+    at that time, with Ouster's per-point ``t`` (:mod:`decod_rs.sim.sweep`) and, with
+    ``livox``, Livox's ``offset_time`` since ``timebase``; not in a curving corridor.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
     """
     if odometry not in ("drift", "kiss-icp"):
         raise ValueError(f"odometry must be 'drift' or 'kiss-icp', got {odometry!r}")
-    if sweep and livox:
-        raise ValueError("sweep: not written into livox custom messages (livox=True)")
     _mount(mount_deg)  # refused before anything is written
     t_start = time.perf_counter()
     out = Path(out_dir)

@@ -55,7 +55,10 @@ def livox_types() -> dict[str, Any]:
 
 
 def _points_struct(
-    xyz: NDArray[np.float32], intensity: NDArray[np.float32], pad: int
+    xyz: NDArray[np.float32],
+    intensity: NDArray[np.float32],
+    pad: int,
+    times_ns: NDArray[np.uint32] | None,
 ) -> NDArray[np.void]:
     n = xyz.shape[0]
     names = ["offset_time", "x", "y", "z", "reflectivity", "tag", "line"]
@@ -66,24 +69,34 @@ def _points_struct(
     arr = np.zeros(n, dtype=np.dtype({"names": names, "formats": formats}))
     arr["x"], arr["y"], arr["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     arr["reflectivity"] = np.clip(np.round(intensity), 0, 255).astype(np.uint8)
-    # Points are stamped at the scan stamp (no per-point motion); line = Avia's 6 lasers.
+    # offset_time: each point's ns since ``timebase`` (the scan stamp), 0 for a scan taken
+    # from one pose; line = Avia's 6 lasers.
+    if times_ns is not None:
+        arr["offset_time"] = times_ns
     arr["line"] = (np.arange(n) % 6).astype(np.uint8)
     return arr
 
 
 def custom_msg_ros1(
-    stamp_ns: int, seq: int, xyz: NDArray[np.float32], intensity: NDArray[np.float32]
+    stamp_ns: int,
+    seq: int,
+    xyz: NDArray[np.float32],
+    intensity: NDArray[np.float32],
+    times_ns: NDArray[np.uint32] | None = None,
 ) -> bytes:
     frame = b"body"
     head = struct.pack("<III", seq, stamp_ns // 10**9, stamp_ns % 10**9)
     head += struct.pack("<I", len(frame)) + frame
     n = xyz.shape[0]
     body = struct.pack("<QIB3sI", stamp_ns, n, 0, b"\0\0\0", n)
-    return head + body + _points_struct(xyz, intensity, 0).tobytes()
+    return head + body + _points_struct(xyz, intensity, 0, times_ns).tobytes()
 
 
 def custom_msg_cdr(
-    stamp_ns: int, xyz: NDArray[np.float32], intensity: NDArray[np.float32]
+    stamp_ns: int,
+    xyz: NDArray[np.float32],
+    intensity: NDArray[np.float32],
+    times_ns: NDArray[np.uint32] | None = None,
 ) -> bytes:
     frame = b"body\0"
     out = bytearray(b"\x00\x01\x00\x00")  # CDR little endian encapsulation
@@ -101,7 +114,7 @@ def custom_msg_cdr(
     align(4)
     out += struct.pack("<I", n)
     if n:
-        pts = _points_struct(xyz, intensity, 1).tobytes()
+        pts = _points_struct(xyz, intensity, 1, times_ns).tobytes()
         out += pts[:-1]  # no padding after the last point
     return bytes(out)
 
@@ -177,7 +190,7 @@ class Ros1Writer:
         )
         self._write("/points", stamp_ns, msg)
         if self._livox:
-            raw = custom_msg_ros1(stamp_ns, self._next(TOPIC_LIVOX), xyz, inten)
+            raw = custom_msg_ros1(stamp_ns, self._next(TOPIC_LIVOX), xyz, inten, times_ns)
             self._w.write(self._c[TOPIC_LIVOX], stamp_ns, raw)
 
     def odom(self, stamp_ns: int, pose: F64, lin: F64, ang: F64) -> None:

@@ -104,7 +104,8 @@ class LogWriter:
         )
         self._write(self._c_points, stamp_ns, msg, TOPIC_POINTS)
         if self._livox:
-            self._writer.write(self._c_livox, stamp_ns, custom_msg_cdr(stamp_ns, xyz, intensity))
+            raw = custom_msg_cdr(stamp_ns, xyz, intensity, times_ns)
+            self._writer.write(self._c_livox, stamp_ns, raw)
             self.counts[TOPIC_LIVOX] += 1
 
     def odom(self, stamp_ns: int, pose: F64, lin_body: F64, ang_body: F64) -> None:
