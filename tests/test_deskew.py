@@ -125,17 +125,3 @@ def test_a_swept_livox_custom_msg_carries_the_same_times(tmp_path: Path) -> None
     shifts = [m.points[:, 0] - r.points[:, 0] for r, m in zip(raw, moved, strict=True)]
     assert 0.06 < max(float(d.max()) for d in shifts) < 0.15
     assert -0.15 < min(float(d.min()) for d in shifts) < -0.06
-
-
-def test_a_sweep_is_refused_where_it_is_not_simulated(tmp_path: Path) -> None:
-    # Refused before anything is written, naming what does not go with it.
-    with pytest.raises(ValueError, match="sweep: not simulated in a curving corridor"):
-        simulate(
-            "shield",
-            tmp_path / "b",
-            length_m=5.0,
-            sweep=True,
-            curve_radius_m=300.0,
-            progress=False,
-        )
-    assert not (tmp_path / "b" / "log").exists()

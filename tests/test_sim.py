@@ -578,15 +578,26 @@ def test_livox_custom_msg_and_ros1_bag(tmp_path: Path) -> None:
         assert np.array_equal(first_cloud, cloud)
 
 
-@pytest.mark.parametrize(("scene", "sensor"), [("horseshoe", "avia"), ("shield", "spin16")])
+@pytest.mark.parametrize(
+    ("scene", "sensor", "curve"),
+    [("horseshoe", "avia", None), ("shield", "spin16", None), ("shield", "spin16", -90.0)],
+)
 def test_a_swept_scan_lies_on_the_surface_from_each_points_own_pose(
-    scene: str, sensor: str
+    scene: str, sensor: str, curve: float | None
 ) -> None:
     """``sweep``: every ray cast from the pose at its own time (one call, one origin per
-    ray); each point, put back through the pose at its time, lies on the surface. Checked
-    in the turn, where the heading changes within a sweep (a rosette's rays one by one, a
-    spinning sensor's columns)."""
-    sim = Simulation(scene, seed=2, length_m=8.0, sensor=sensor, return_mode="turn", sweep=True)
+    ray); each point, put back through the pose at its time (in a curving corridor the bent
+    one, and then unbent), lies on the surface. Checked in the turn, where the heading
+    changes within a sweep (a rosette's rays one by one, a spinning sensor's columns)."""
+    sim = Simulation(
+        scene,
+        seed=2,
+        length_m=8.0,
+        sensor=sensor,
+        return_mode="turn",
+        sweep=True,
+        curve_radius_m=curve,
+    )
     poses = sim.straight_poses
     yaw = np.unwrap(np.arctan2(poses[:, 1, 0], poses[:, 0, 0]))
     k = int(np.argmax(np.abs(np.diff(yaw))))
@@ -594,13 +605,22 @@ def test_a_swept_scan_lies_on_the_surface_from_each_points_own_pose(
     pts, _, t_ns = sim.scan_with_times(k)
     assert t_ns is not None and t_ns.size == len(pts) and t_ns.max() > 0.09e9
     rot, origin = poses_between(poses[k], poses[k + 1], t_ns.astype(np.float64) / 1e8)
+    stamp_pose = poses[k]
+    if sim.bend is not None:  # the bent poses at the points' times, and back
+        straight = np.tile(np.eye(4), (len(pts), 1, 1))
+        straight[:, :3, :3], straight[:, :3, 3] = rot, origin
+        bent = sim.bend.poses(straight)
+        rot, origin = bent[:, :3, :3], bent[:, :3, 3]
+        stamp_pose = sim.gt_poses[k]
     world = np.einsum("nij,nj->ni", rot, pts.astype(np.float64)) + origin
+    stamp = pts.astype(np.float64) @ stamp_pose[:3, :3].T + stamp_pose[:3, 3]
+    if sim.bend is not None:
+        world, stamp = sim.bend.unbend(world), sim.bend.unbend(stamp)
     sigma = sim.range_noise_m
     r = _surface_residual(sim.scene, world)
     assert np.mean(r < 4 * sigma + 1e-5) >= 0.995, np.percentile(r, [50, 99, 100])
     # The check can fail: every point through the stamp's pose, as a consumer that does not
     # deskew takes them, is off the surface by the turn within the sweep.
-    stamp = pts.astype(np.float64) @ poses[k][:3, :3].T + poses[k][:3, 3]
     assert np.mean(_surface_residual(sim.scene, stamp) < 4 * sigma + 1e-5) < 0.9
 
 

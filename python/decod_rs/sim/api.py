@@ -145,8 +145,6 @@ class Simulation:
         # points written are in the bent one (:mod:`decod_rs.sim.bend`).
         radius = check_bend_radius(curve_radius_m, self.scene.radius_m)
         self.bend: Bend | None = None if radius is None else Bend(radius)
-        if self.sweep and self.bend is not None:
-            raise ValueError("sweep: not simulated in a curving corridor (curve_radius_m)")
         self.straight_poses = self.traj.poses(self.t_s)
         self.gt_poses = (
             self.straight_poses if self.bend is None else self.bend.poses(self.straight_poses)
@@ -215,7 +213,10 @@ class Simulation:
             )
 
         if self.sweep:
-            return swept_points(self.straight_poses, k, dirs_body, self.sensor, measure_from)
+            section = (self.scene.radius_m, self.scene.floor_z_m)
+            return swept_points(
+                self.straight_poses, k, dirs_body, self.sensor, measure_from, self.bend, section
+            )
         pose = self.straight_poses[k]
         rot, origin = pose[:3, :3], pose[:3, 3]
         pts_w, inten, _ = measure_from(origin, dirs_body @ rot.T)
@@ -754,7 +755,7 @@ def simulate(
     ``ros1=True`` also writes the log as a ROS 1 bag ``out_dir/log.bag``.
     ``sweep=True``: each point measured at its own time within its scan, in the sensor's frame
     at that time, with Ouster's per-point ``t`` (:mod:`decod_rs.sim.sweep`) and, with
-    ``livox``, Livox's ``offset_time`` since ``timebase``; not in a curving corridor.
+    ``livox``, Livox's ``offset_time`` since ``timebase``.
     Raises ``FileExistsError`` if the log exists and not ``overwrite``.
     """
     if odometry not in ("drift", "kiss-icp"):

@@ -13,7 +13,9 @@ boundaries are measured in.
 time (translation linear, rotation along the geodesic between the scan's pose and the next),
 all in one call, and returns the points in the frame of the pose each was measured from,
 with their times as the drivers report them (whole ns): a spinning sensor's column time, a
-rosette's ray time.
+rosette's ray time. In a curving corridor (:mod:`decod_rs.sim.bend`) the rays are cast in
+the straight world, as a scan from one pose is, and each point is bent and seen from the
+bent pose at its time.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from decod_rs.sim.bend import Bend
 from decod_rs.sim.fields import F64
 from decod_rs.sim.sensors import SCAN_PERIOD_S, SensorSpec
 
@@ -74,11 +77,15 @@ def swept_points(
     dirs_body: F64,
     spec: SensorSpec,
     measure_from: Callable[[F64, F64], tuple[F64, NDArray[np.float32], NDArray[np.bool_]]],
+    bend: Bend | None = None,
+    section: tuple[float, float | None] = (0.0, None),
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.uint32]]:
     """Scan ``k`` swept (module docs): ``poses`` (N, 4, 4) at the scan stamps (the last scan
     sweeps on along the step before it), ``dirs_body`` (M, 3) the rays, ``measure_from(origins,
     dirs_world) -> (points_world, intensity, kept)`` the cast and measurement of every ray from
-    its own origin (M, 3), ``kept`` (M,) the rays that returned a point.
+    its own origin (M, 3), ``kept`` (M,) the rays that returned a point; ``bend`` the curve
+    (``poses`` straight), ``section`` the corridor's radius and floor height for what its
+    inside wall hides (:meth:`~decod_rs.sim.bend.Bend.in_sight`).
     Returns the points (float32, each in the frame of its own pose), their intensities and
     their times since the sweep's start (ns)."""
     times = ray_times_s(spec, dirs_body.shape[0])
@@ -92,8 +99,17 @@ def swept_points(
     # One pose per distinct time (a spinning sensor's column), then one per ray.
     distinct, ray_of = np.unique(times, return_inverse=True)
     rot_t, origin_t = poses_between(start, end, distinct / SCAN_PERIOD_S)
-    rot, origin = rot_t[ray_of], origin_t[ray_of]
-    pts_w, inten, kept = measure_from(origin, np.einsum("nij,nj->ni", rot, dirs_body))
-    pts_b = np.einsum("nji,nj->ni", rot[kept], pts_w - origin[kept])
-    stamp_ns = np.round(times[kept] * 1e9).astype(np.uint32)
+    dirs_world = np.einsum("nij,nj->ni", rot_t[ray_of], dirs_body)
+    pts_w, inten, kept = measure_from(origin_t[ray_of], dirs_world)
+    ray_of, times = ray_of[kept], times[kept]
+    if bend is not None:
+        pts_w = bend.points(pts_w)
+        straight = np.tile(np.eye(4), (len(distinct), 1, 1))
+        straight[:, :3, :3], straight[:, :3, 3] = rot_t, origin_t
+        bent = bend.poses(straight)
+        rot_t, origin_t = bent[:, :3, :3], bent[:, :3, 3]
+        seen = bend.in_sight(origin_t[ray_of], pts_w, *section)
+        pts_w, inten, ray_of, times = pts_w[seen], inten[seen], ray_of[seen], times[seen]
+    pts_b = np.einsum("nji,nj->ni", rot_t[ray_of], pts_w - origin_t[ray_of])
+    stamp_ns = np.round(times * 1e9).astype(np.uint32)
     return pts_b.astype(np.float32), inten.astype(np.float32), stamp_ns
