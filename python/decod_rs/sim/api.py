@@ -213,10 +213,12 @@ class Simulation:
             )
 
         if self.sweep:
-            section = (self.scene.radius_m, self.scene.floor_z_m)
-            return swept_points(
-                self.straight_poses, k, dirs_body, self.sensor, measure_from, self.bend, section
+            curve = (
+                None
+                if self.bend is None
+                else (self.bend, self.scene.radius_m, self.scene.floor_z_m)
             )
+            return swept_points(self.straight_poses, k, dirs_body, self.sensor, measure_from, curve)
         pose = self.straight_poses[k]
         rot, origin = pose[:3, :3], pose[:3, 3]
         pts_w, inten, _ = measure_from(origin, dirs_body @ rot.T)

@@ -77,15 +77,14 @@ def swept_points(
     dirs_body: F64,
     spec: SensorSpec,
     measure_from: Callable[[F64, F64], tuple[F64, NDArray[np.float32], NDArray[np.bool_]]],
-    bend: Bend | None = None,
-    section: tuple[float, float | None] = (0.0, None),
+    curve: tuple[Bend, float, float | None] | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.uint32]]:
     """Scan ``k`` swept (module docs): ``poses`` (N, 4, 4) at the scan stamps (the last scan
     sweeps on along the step before it), ``dirs_body`` (M, 3) the rays, ``measure_from(origins,
     dirs_world) -> (points_world, intensity, kept)`` the cast and measurement of every ray from
-    its own origin (M, 3), ``kept`` (M,) the rays that returned a point; ``bend`` the curve
-    (``poses`` straight), ``section`` the corridor's radius and floor height for what its
-    inside wall hides (:meth:`~decod_rs.sim.bend.Bend.in_sight`).
+    its own origin (M, 3), ``kept`` (M,) the rays that returned a point; ``curve`` the bend
+    (``poses`` straight) with the corridor's radius and floor height, for what its inside
+    wall hides (:meth:`~decod_rs.sim.bend.Bend.in_sight`).
     Returns the points (float32, each in the frame of its own pose), their intensities and
     their times since the sweep's start (ns)."""
     times = ray_times_s(spec, dirs_body.shape[0])
@@ -102,13 +101,14 @@ def swept_points(
     dirs_world = np.einsum("nij,nj->ni", rot_t[ray_of], dirs_body)
     pts_w, inten, kept = measure_from(origin_t[ray_of], dirs_world)
     ray_of, times = ray_of[kept], times[kept]
-    if bend is not None:
+    if curve is not None:
+        bend, radius_m, floor_z_m = curve
         pts_w = bend.points(pts_w)
         straight = np.tile(np.eye(4), (len(distinct), 1, 1))
         straight[:, :3, :3], straight[:, :3, 3] = rot_t, origin_t
         bent = bend.poses(straight)
         rot_t, origin_t = bent[:, :3, :3], bent[:, :3, 3]
-        seen = bend.in_sight(origin_t[ray_of], pts_w, *section)
+        seen = bend.in_sight(origin_t[ray_of], pts_w, radius_m, floor_z_m)
         pts_w, inten, ray_of, times = pts_w[seen], inten[seen], ray_of[seen], times[seen]
     pts_b = np.einsum("nji,nj->ni", rot_t[ray_of], pts_w - origin_t[ray_of])
     stamp_ns = np.round(times * 1e9).astype(np.uint32)
