@@ -604,14 +604,11 @@ def test_a_swept_scan_lies_on_the_surface_from_each_points_own_pose(
     assert abs(yaw[k + 1] - yaw[k]) > np.deg2rad(2.0)  # turning within the sweep
     pts, _, t_ns = sim.scan_with_times(k)
     assert t_ns is not None and t_ns.size == len(pts) and t_ns.max() > 0.09e9
-    rot, origin = poses_between(poses[k], poses[k + 1], t_ns.astype(np.float64) / 1e8)
+    at = poses_between(poses[k], poses[k + 1], t_ns.astype(np.float64) / 1e8)
     stamp_pose = poses[k]
     if sim.bend is not None:  # the bent poses at the points' times, and back
-        straight = np.tile(np.eye(4), (len(pts), 1, 1))
-        straight[:, :3, :3], straight[:, :3, 3] = rot, origin
-        bent = sim.bend.poses(straight)
-        rot, origin = bent[:, :3, :3], bent[:, :3, 3]
-        stamp_pose = sim.gt_poses[k]
+        at, stamp_pose = sim.bend.poses(at), sim.gt_poses[k]
+    rot, origin = at[:, :3, :3], at[:, :3, 3]
     world = np.einsum("nij,nj->ni", rot, pts.astype(np.float64)) + origin
     stamp = pts.astype(np.float64) @ stamp_pose[:3, :3].T + stamp_pose[:3, 3]
     if sim.bend is not None:

@@ -63,12 +63,13 @@ def _rotation_log(r: F64) -> F64:
     return angle / (2.0 * np.sin(angle)) * v
 
 
-def poses_between(a: F64, b: F64, fractions: F64) -> tuple[F64, F64]:
-    """The poses at ``fractions`` (T,) of the way from ``a`` to ``b`` (4x4 each): their
-    rotations (T, 3, 3) and positions (T, 3)."""
-    rot = a[:3, :3] @ _rotations_exp(_rotation_log(a[:3, :3].T @ b[:3, :3]), fractions)
-    s = np.asarray(fractions, dtype=np.float64)[:, None]
-    return rot, (1.0 - s) * a[:3, 3] + s * b[:3, 3]
+def poses_between(a: F64, b: F64, fractions: F64) -> F64:
+    """The poses (T, 4, 4) at ``fractions`` (T,) of the way from ``a`` to ``b`` (4x4 each)."""
+    s = np.asarray(fractions, dtype=np.float64)
+    out = np.tile(np.eye(4), (s.size, 1, 1))
+    out[:, :3, :3] = a[:3, :3] @ _rotations_exp(_rotation_log(a[:3, :3].T @ b[:3, :3]), s)
+    out[:, :3, 3] = (1.0 - s[:, None]) * a[:3, 3] + s[:, None] * b[:3, 3]
+    return out
 
 
 def swept_points(
@@ -97,16 +98,15 @@ def swept_points(
         start = end = poses[k]
     # One pose per distinct time (a spinning sensor's column), then one per ray.
     distinct, ray_of = np.unique(times, return_inverse=True)
-    rot_t, origin_t = poses_between(start, end, distinct / SCAN_PERIOD_S)
+    at = poses_between(start, end, distinct / SCAN_PERIOD_S)
+    rot_t, origin_t = at[:, :3, :3], at[:, :3, 3]
     dirs_world = np.einsum("nij,nj->ni", rot_t[ray_of], dirs_body)
     pts_w, inten, kept = measure_from(origin_t[ray_of], dirs_world)
     ray_of, times = ray_of[kept], times[kept]
     if curve is not None:
         bend, radius_m, floor_z_m = curve
         pts_w = bend.points(pts_w)
-        straight = np.tile(np.eye(4), (len(distinct), 1, 1))
-        straight[:, :3, :3], straight[:, :3, 3] = rot_t, origin_t
-        bent = bend.poses(straight)
+        bent = bend.poses(at)
         rot_t, origin_t = bent[:, :3, :3], bent[:, :3, 3]
         seen = bend.in_sight(origin_t[ray_of], pts_w, radius_m, floor_z_m)
         pts_w, inten, ray_of, times = pts_w[seen], inten[seen], ray_of[seen], times[seen]
