@@ -155,6 +155,9 @@ class RebuildDecision:
     threshold_m: float
     loops: tuple[int, int] | None = None
     rescaled: tuple[int, int] = (0, 0)
+    #: The focus of the passes the earlier round did not measure (:mod:`decod_rs.focus`),
+    #: ``PassFocus.report()`` each.
+    focus: tuple[dict[str, Any], ...] = ()
 
     @property
     def kept(self) -> bool:
@@ -171,6 +174,7 @@ class RebuildDecision:
             else list(self.rescaled),
             "travel_disagreement_m": self.disagreement_m,
             "threshold_m": self.threshold_m,
+            "focus": list(self.focus),
         }
 
 

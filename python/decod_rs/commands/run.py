@@ -167,6 +167,7 @@ def print_outcome(out: Path, survey: bool = False, mapped: bool = False) -> None
     report = read_report(out)
     print_setup(report)
     print_rebuild(report)
+    print_focus(report)
     print_joints(out)
     print_within_passes(report)
     print_cross_axis(report)
@@ -284,6 +285,27 @@ def print_rebuild(report: dict[str, Any]) -> None:
         why = f"the correction moves a submap's travel by {moved} > {limit}"
         parts.append(f"round {k} ({why}): loops {before} -> {after}, {verdict}")
     print(f"rebuilt        {'; '.join(parts)}")
+
+
+def print_focus(report: dict[str, Any]) -> None:
+    """The passes the first round did not measure, focused before the rebuild
+    (``report.json`` ``rebuild.focus``, :mod:`decod_rs.focus`): the scale each was stitched
+    at and how much sharper the wall was there, or why it was left. Nothing when every pass
+    was measured."""
+    section = report.get("rebuild") or {}
+    parts = []
+    for f in section.get("focus", []):
+        gain = "" if f["gain"] is None else f"{f['gain']:.2f}x"
+        if f["applied"]:
+            parts.append(f"{f['pass_name']} stitched at {f['scale']:.3f} (the wall {gain} sharper)")
+        elif f["scale"] is not None:
+            parts.append(f"{f['pass_name']} sharpest at {f['scale']:.3f}, close enough to leave")
+        elif f["windows"] == 0:
+            parts.append(f"{f['pass_name']} too short to focus")
+        else:
+            parts.append(f"{f['pass_name']} no clear peak ({gain or 'no profile'})")
+    if parts:
+        print(f"focus          {'; '.join(parts)}")
 
 
 def print_joints(out: Path) -> None:

@@ -4,11 +4,13 @@ them differently enough (:mod:`decod_rs.refinement` decides and judges the round
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs.config import Config
+from decod_rs.focus import focused_stitching
 from decod_rs.parking import set_aside
 from decod_rs.refinement import MAX_ROUNDS, RebuildDecision, rebuild_decision
 from decod_rs.stages.extract import Extracted, SubmapLandmarks, restitched
@@ -24,6 +26,31 @@ def rebuild(
     """Stage 1 again, the submaps stitched by the corrected trajectory; the anchors placed
     on the odometry like the first ones (:mod:`decod_rs.refinement`)."""
     return restitched(extraction, cfg, corrected, progress, "rebuild")
+
+
+def focused(
+    extraction: Extracted, solved: Solved, split: float | None, cfg: Config
+) -> tuple[Solved, tuple[dict[str, Any], ...]]:
+    """``solved`` stitching the passes its round did not measure at their focus scale, where
+    one is found (:mod:`decod_rs.focus`), and the focus of each such pass."""
+    if not cfg.submap.focus_unmeasured:
+        return solved, ()
+    passes = 1 if split is None else 2
+    reported = [] if solved.scale is None else solved.scale.passes
+    if len(reported) == passes:
+        unmeasured = [not bool(p["rescaled"]) for p in reported]
+    else:  # a pass that did not move has no entry: look at every pass
+        unmeasured = [True] * passes
+    if not any(unmeasured):
+        return solved, ()
+    stamps = extraction.scans[0]
+    topics = (extraction.processor.points_topic, extraction.imu_topic)
+    stitch, found = focused_stitching(
+        extraction.log, topics, stamps, solved.stitching, split, unmeasured, cfg
+    )
+    if any(f.applied for f in found):
+        solved = replace(solved, stitch=stitch)
+    return solved, tuple(f.report() for f in found)
 
 
 def rescaled_passes(solved: Solved) -> int:
@@ -48,7 +75,10 @@ def rebuilt(
     stitched_on = scans[1]  # the first submaps were stitched on the odometry
     decisions: list[RebuildDecision] = []
     while len(decisions) < MAX_ROUNDS:
-        decision = rebuild_decision(stitched_on, solved.stitching, cfg)
+        solved, focus = (
+            focused(extraction, solved, matched.split, cfg) if not decisions else (solved, ())
+        )
+        decision = replace(rebuild_decision(stitched_on, solved.stitching, cfg), focus=focus)
         if not decision.needed:
             decisions.append(decision)
             break
