@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs.io import ScanRecord, read_log
+from decod_rs.progress import Progress
 from decod_rs.tum import write_tum
 
 FloatArray = NDArray[np.float64]
@@ -210,10 +211,12 @@ def _read_windows(
     starts: list[int],
     length: int,
     reading: tuple[bool, float],
+    progress: bool = False,
 ) -> list[list[ScanRecord]]:
     """The scans of the windows at ``starts`` (indices into ``stamps``), each with its pose
     in ``poses``, read from ``log`` (points and IMU topics ``topics``; deskew and odometry
-    gap periods ``reading``)."""
+    gap periods ``reading``), up to the last one (a progress bar over them with
+    ``progress``)."""
     wanted: dict[int, int] = {}
     for w, start in enumerate(starts):
         for k in range(start, start + length):
@@ -226,12 +229,15 @@ def _read_windows(
             log, topics[0], None, tum, topics[1], gap_periods=reading[1], deskew=reading[0]
         )
         last = max(wanted) if wanted else -1
+        bar = Progress("focus", last + 1, enabled=progress)
         for rec in reader:
+            bar.advance(1)
             k = int(np.searchsorted(stamps, rec.stamp))
             if k < stamps.size and abs(stamps[k] - rec.stamp) < 1e-6 and k in wanted:
                 windows[wanted[k]].append(rec)
             if k >= last:
                 break
+        bar.close()
     return [w for w in windows if len(w) == length]
 
 
@@ -243,11 +249,12 @@ def focused_stitching(
     split: float | None,
     unmeasured: list[bool],
     cfg: Any,
+    progress: bool = False,
 ) -> tuple[FloatArray, list[PassFocus]]:
     """``stitching`` (N, 4, 4 at ``stamps``) with each pass flagged in ``unmeasured`` (one
     flag per pass of :func:`_pass_ranges`) rescaled about its first scan by its focus scale,
     where one is found (module docs), and every pass's focus. ``topics``: the points and IMU
-    topics; ``cfg``: the run's config."""
+    topics; ``cfg``: the run's config; ``progress``: a bar while the log is read."""
     cfg_json = json.dumps(cfg.to_dict())
     length = int(cfg.submap.scans_per_submap)
     reading = (bool(cfg.submap.deskew), float(cfg.submap.odometry_gap_periods))
@@ -258,7 +265,14 @@ def focused_stitching(
             continue
         focus = PassFocus(name, scales=[float(s) for s in FOCUS_SCALES])
         windows = _read_windows(
-            log, topics, stamps, stitching, _window_starts(lo, hi, length), length, reading
+            log,
+            topics,
+            stamps,
+            stitching,
+            _window_starts(lo, hi, length),
+            length,
+            reading,
+            progress,
         )
         focus.windows = len(windows)
         if windows:

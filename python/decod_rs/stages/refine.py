@@ -29,7 +29,7 @@ def rebuild(
 
 
 def focused(
-    extraction: Extracted, solved: Solved, split: float | None, cfg: Config
+    extraction: Extracted, solved: Solved, split: float | None, cfg: Config, progress: bool
 ) -> tuple[Solved, tuple[dict[str, Any], ...]]:
     """``solved`` stitching the passes its round did not measure at their focus scale, where
     one is found (:mod:`decod_rs.focus`), and the focus of each such pass."""
@@ -46,7 +46,7 @@ def focused(
     stamps = extraction.scans[0]
     topics = (extraction.processor.points_topic, extraction.imu_topic)
     stitch, found = focused_stitching(
-        extraction.log, topics, stamps, solved.stitching, split, unmeasured, cfg
+        extraction.log, topics, stamps, solved.stitching, split, unmeasured, cfg, progress
     )
     if any(f.applied for f in found):
         solved = replace(solved, stitch=stitch)
@@ -70,13 +70,17 @@ def rebuilt(
     """Stages 1-4 again on submaps rebuilt on the corrected trajectory, for as long as the
     newest correction stitches them differently enough from the trajectory they were
     stitched on and the rebuilt round stands (:mod:`decod_rs.refinement`: at most
-    ``MAX_ROUNDS`` rebuilds). The decisions of the rounds, first to last."""
+    ``MAX_ROUNDS`` rebuilds). Before the first, a pass the first round did not measure is
+    stitched at its focus scale where one is found (:func:`focused`). The decisions of the
+    rounds, first to last."""
     scans = extraction.scans
     stitched_on = scans[1]  # the first submaps were stitched on the odometry
     decisions: list[RebuildDecision] = []
     while len(decisions) < MAX_ROUNDS:
         solved, focus = (
-            focused(extraction, solved, matched.split, cfg) if not decisions else (solved, ())
+            focused(extraction, solved, matched.split, cfg, progress)
+            if not decisions
+            else (solved, ())
         )
         decision = replace(rebuild_decision(stitched_on, solved.stitching, cfg), focus=focus)
         if not decision.needed:
