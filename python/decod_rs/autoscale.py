@@ -128,6 +128,7 @@ from numpy.typing import NDArray
 
 from decod_rs import _core
 from decod_rs.config import Config
+from decod_rs.extraction import scans_submap
 from decod_rs.ingest import LogWarning
 from decod_rs.io import ScanReader, read_log
 from decod_rs.jitter import assess
@@ -250,19 +251,6 @@ def _z_near(points: FloatArray, axis: FloatArray, centre: FloatArray, gravity: F
     return float(covered[0] * step) if covered.size else math.inf
 
 
-def _probe_submap(window: list[Any], cfg: str) -> Any:
-    """One probe submap of the scans in ``window`` under config JSON ``cfg``."""
-    force = [w.specific_force for w in window]
-    return _core.build_submap(
-        np.array([w.stamp for w in window]),
-        [w.points.astype(np.float64) for w in window],
-        np.stack([w.pose for w in window]),
-        len(window) // 2,
-        None if any(f is None for f in force) else np.stack(force),  # type: ignore[arg-type]
-        cfg,
-    )
-
-
 def _probe_windows(windows: list[list[Any]], cfg: str) -> list[tuple[Any, Any]]:
     """Each window's probe submap and its extraction result under config JSON ``cfg``, in
     order. The windows are independent and the core releases the GIL, so two threads build
@@ -270,7 +258,7 @@ def _probe_windows(windows: list[list[Any]], cfg: str) -> list[tuple[Any, Any]]:
     building and extracting its eight submaps one at a time)."""
 
     def one(window: list[Any]) -> tuple[Any, Any]:
-        submap = _probe_submap(window, cfg)
+        submap = scans_submap(window, cfg)
         return submap, _core.extract_submap(submap, cfg)
 
     if len(windows) < 2:

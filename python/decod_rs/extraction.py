@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from decod_rs import _core
 from decod_rs._core import ExtractionResult, Rejection, Submap, SubmapBuilder, SubmapDiagnostics
 from decod_rs.config import PRESETS, Config
+from decod_rs.io import ScanRecord
 
 __all__ = [
     "ExtractionResult",
@@ -135,6 +136,25 @@ def build_submap(
     if not 0 <= anchor < k:
         raise ValueError(f"`anchor_index` {anchor} is out of range for K = {k} scans")
     return _core.build_submap(stamps_a, clouds, poses_a, anchor, force, config_json(config))
+
+
+def scans_submap(
+    window: Sequence[ScanRecord], config_json: str, poses: NDArray[np.float64] | None = None
+) -> Submap:
+    """The submap of the scans in ``window`` (:class:`~decod_rs.io.ScanRecord`, in time
+    order) anchored at the middle one, stitched on their own poses or on ``poses``
+    ``(K, 4, 4)``, under config JSON ``config_json``; gravity from their IMU specific force
+    when every scan has one. ``auto``'s probe windows and the focus's windows
+    (:mod:`decod_rs.focus`) are built so."""
+    force = [w.specific_force for w in window]
+    return _core.build_submap(
+        np.array([w.stamp for w in window]),
+        [w.points.astype(np.float64) for w in window],
+        np.stack([w.pose for w in window]) if poses is None else poses,
+        len(window) // 2,
+        None if any(f is None for f in force) else np.stack(force),  # type: ignore[arg-type]
+        config_json,
+    )
 
 
 def extract_submap(submap: Submap, *, config: Config | str = "tunnel") -> ExtractionResult:

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from decod_rs import _core
+from decod_rs.extraction import scans_submap
 from decod_rs.io import ScanRecord, read_log
 from decod_rs.progress import Progress
 from decod_rs.tum import write_tum
@@ -117,17 +118,8 @@ def _scaled_poses(poses: FloatArray, anchor: int, scale: float) -> FloatArray:
 def _spread(window: list[ScanRecord], scale: float, cfg_json: str) -> float | None:
     """The DoG spread of ``window`` stitched at ``scale`` (None: extraction stopped before
     the boundary profile)."""
-    anchor = len(window) // 2
-    poses = _scaled_poses(np.stack([w.pose for w in window]), anchor, scale)
-    forces = [w.specific_force for w in window]
-    submap = _core.build_submap(
-        np.array([w.stamp for w in window]),
-        [w.points.astype(np.float64) for w in window],
-        poses,
-        anchor,
-        None if any(f is None for f in forces) else np.stack(forces),  # type: ignore[arg-type]
-        cfg_json,
-    )
+    poses = _scaled_poses(np.stack([w.pose for w in window]), len(window) // 2, scale)
+    submap = scans_submap(window, cfg_json, poses)
     spread = float(_core.extract_submap(submap, cfg_json).diagnostics.dog_sigma_m)
     return spread if math.isfinite(spread) and spread > 0.0 else None
 
